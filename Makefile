@@ -1,0 +1,33 @@
+# Every target that runs code sets up .venv itself; `make setup` is a no-op when it is up to date.
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup pipeline test bench lint ui clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+pipeline: setup
+	$(PY) -m pipeline $(ARGS)
+
+test: setup
+	$(PY) -m pytest $(ARGS)
+
+bench: setup
+	$(PY) -m benchmarks $(ARGS)
+
+lint: setup
+	$(VENV)/bin/ruff check pipeline stages tests benchmarks
+
+ui: setup
+	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db --host 127.0.0.1 --port 5000
+
+clean:
+	rm -rf outputs multirun .deepword_cache mlflow.db mlartifacts
