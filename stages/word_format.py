@@ -94,7 +94,12 @@ class Record:
 
 
 def _is_number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an integer too large for a float (JSON allows any length)
+        return False
 
 
 def _is_int(x) -> bool:
@@ -115,6 +120,8 @@ def parse_record(obj, file: str, line: int | None, root: Path | None = None, che
     image = obj["image"]
     if not isinstance(image, str) or not image:
         fail("image", "must be a non-empty relative path")
+    if "\x00" in image:
+        fail("image", f"path {image!r} contains a NUL character")
     if os.path.isabs(image) or ".." in Path(image).parts:
         fail("image", f"path {image!r} leaves the dataset root")
     if root is not None:
@@ -214,27 +221,39 @@ def parse_record(obj, file: str, line: int | None, root: Path | None = None, che
 def read_records(labels_path: str | os.PathLike, root: str | os.PathLike | None = None,
                  check_images: bool = False, allow_empty: bool = False) -> list[Record]:
     """Read and validate every line of a labels file. ``root`` (default: the file's folder) is what image
-    paths must stay inside; ``check_images`` also requires every named image file to exist."""
+    paths must stay inside; ``check_images`` also requires every named image to exist, be a complete PNG/JPEG
+    and have the record's size (header checks only, see ``check_image_file``)."""
     labels_path = Path(labels_path)
     root = Path(root) if root is not None else labels_path.parent
     if not labels_path.is_file():
         raise DatasetError(labels_path, None, "<file>", "labels file not found")
     records: list[Record] = []
     seen: dict[str, int] = {}
-    with open(labels_path, encoding="utf-8") as fh:
-        for lineno, text in enumerate(fh, start=1):
+    try:
+        fh = open(labels_path, "rb")  # bytes: a bad byte is reported with its line, not as a decode traceback
+    except OSError as exc:
+        raise DatasetError(labels_path, None, "<file>", f"cannot be read: {exc.strerror}") from None
+    with fh:
+        for lineno, raw in enumerate(fh, start=1):
+            try:
+                text = raw.decode("utf-8-sig" if lineno == 1 else "utf-8")
+            except UnicodeDecodeError as exc:
+                raise DatasetError(labels_path, lineno, "<encoding>", f"not UTF-8 (byte {exc.start + 1} of the line)") from None
             if not text.strip():
                 continue
             try:
                 obj = json.loads(text)
             except json.JSONDecodeError as exc:
-                raise DatasetError(labels_path, lineno, "<json>", f"malformed JSON: {exc.msg} at column {exc.colno}") from None
+                # exc.pos, not exc.colno: the line's own newline would make an error at its end read "column 1"
+                raise DatasetError(labels_path, lineno, "<json>", f"malformed JSON: {exc.msg} at character {exc.pos + 1}") from None
+            except RecursionError:
+                raise DatasetError(labels_path, lineno, "<json>", "malformed JSON: nested too deeply") from None
             rec = parse_record(obj, str(labels_path), lineno, root=root)
             if rec.image in seen:
                 raise DatasetError(labels_path, lineno, "image", f"{rec.image!r} already described on line {seen[rec.image]}")
             seen[rec.image] = lineno
-            if check_images and not (root / rec.image).is_file():
-                raise DatasetError(labels_path, lineno, "image", f"image file {root / rec.image} not found")
+            if check_images:
+                check_image_file(root, rec)
             records.append(rec)
     if not records and not allow_empty:
         raise DatasetError(labels_path, None, "<file>", "no records: the dataset is empty")
@@ -252,20 +271,109 @@ def write_records(labels_path: str | os.PathLike, records: list[Record]) -> None
 
 
 def load_image(root: str | os.PathLike, record: Record) -> np.ndarray:
-    """The record's image as an RGB uint8 array, checked against the record's width and height."""
+    """The record's image as an RGB uint8 array, checked against the record's width and height.
+    The header check comes first because OpenCV decodes a truncated JPEG without complaint."""
     import cv2  # deferred: keeps the reader importable without OpenCV's load time
 
+    check_image_file(root, record)
     path = Path(root) / record.image
     file, line = record.source or (str(path), None)
-    if not path.is_file():
-        raise DatasetError(file, line, "image", f"image file {path} not found")
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
         raise DatasetError(file, line, "image", f"image file {path} is corrupt or not an image")
     h, w = bgr.shape[:2]
     if (w, h) != (record.width, record.height):
-        raise DatasetError(file, line, "width", f"image {path} is {w}x{h}, the record says {record.width}x{record.height}")
+        fld = "width" if w != record.width else "height"
+        raise DatasetError(file, line, fld, f"image {path} is {w}x{h}, the record says {record.width}x{record.height}")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+# --- cheap image checks: headers and trailers, no decoding -----------------------------------------------
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_TRAILER = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the empty IEND chunk every complete PNG ends with
+_JPEG_SOI, _JPEG_EOI = b"\xff\xd8", b"\xff\xd9"
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+_JPEG_TAIL = 1024  # the end-of-image marker must lie this close to the end (some writers pad after it)
+
+
+def _jpeg_size(fh) -> tuple[int, int]:
+    """Walk the JPEG marker segments up to the first start-of-frame and read its width and height."""
+    fh.seek(2)
+    while True:
+        byte = fh.read(1)
+        if byte != b"\xff":
+            raise ValueError("JPEG marker expected: the file is corrupt or truncated")
+        marker = fh.read(1)
+        while marker == b"\xff":  # fill bytes
+            marker = fh.read(1)
+        if not marker:
+            raise ValueError("JPEG header is truncated")
+        m = marker[0]
+        if m == 0x01 or 0xD0 <= m <= 0xD7:  # markers without a length field
+            continue
+        length_bytes = fh.read(2)
+        if len(length_bytes) < 2:
+            raise ValueError("JPEG header is truncated")
+        length = int.from_bytes(length_bytes, "big")
+        if m in _JPEG_SOF:
+            sof = fh.read(5)
+            if len(sof) < 5:
+                raise ValueError("JPEG header is truncated")
+            return int.from_bytes(sof[3:5], "big"), int.from_bytes(sof[1:3], "big")
+        if m in (0xD9, 0xDA) or length < 2:
+            raise ValueError("JPEG has no frame header before its image data")
+        fh.seek(length - 2, os.SEEK_CUR)
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of a PNG or JPEG file from its header, and a check that the file is complete
+    (PNG: ends with IEND; JPEG: an end-of-image marker in its last KiB). Reads a few hundred bytes, decodes
+    nothing: cheap enough to check every image of a dataset up front. Raises ValueError saying what is wrong."""
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+        size = fh.seek(0, os.SEEK_END)
+        if head.startswith(_PNG_SIGNATURE):
+            if len(head) < 24 or head[12:16] != b"IHDR":
+                raise ValueError("PNG header is truncated or corrupt")
+            wh = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            fh.seek(max(size - len(_PNG_TRAILER), 0))
+            if fh.read() != _PNG_TRAILER:
+                raise ValueError("PNG is truncated (it does not end with an IEND chunk)")
+        elif head.startswith(_JPEG_SOI):
+            wh = _jpeg_size(fh)
+            fh.seek(max(size - _JPEG_TAIL, 0))
+            if _JPEG_EOI not in fh.read():
+                raise ValueError("JPEG is truncated (no end-of-image marker at its end)")
+        else:
+            raise ValueError("not a PNG or JPEG file")
+    if min(wh) <= 0:
+        raise ValueError(f"header gives an empty image size {wh[0]}x{wh[1]}")
+    return wh
+
+
+def check_image_file(root: str | os.PathLike, record: Record) -> None:
+    """Check that the record's image exists, is a complete PNG/JPEG and has the record's size, from its
+    header only; raise DatasetError with the record's file and line."""
+    path = Path(root) / record.image
+    file, line = record.source or (str(path), None)
+    if not path.is_file():
+        raise DatasetError(file, line, "image", f"image file {path} not found")
+    try:
+        w, h = image_size(path)
+    except OSError as exc:
+        raise DatasetError(file, line, "image", f"image file {path} cannot be read: {exc.strerror}") from None
+    except ValueError as exc:
+        raise DatasetError(file, line, "image", f"image file {path}: {exc}") from None
+    if (w, h) != (record.width, record.height):
+        fld = "width" if w != record.width else "height"
+        raise DatasetError(file, line, fld, f"image {path} is {w}x{h}, the record says {record.width}x{record.height}")
+
+
+def check_image_files(root: str | os.PathLike, records: list[Record]) -> None:
+    """check_image_file for every record, stopping at the first problem."""
+    for rec in records:
+        check_image_file(root, rec)
 
 
 # --- splits (DESIGN §7) -------------------------------------------------------------------------------
@@ -322,7 +430,11 @@ def write_dataset_index(out_dir: Path, root: Path, splits: dict[str, list[str]])
 def open_dataset(data_dir: str | os.PathLike) -> Dataset:
     """Open the data stage's output directory (``dataset.json`` + ``splits.json``)."""
     data_dir = Path(data_dir)
-    index = json.loads((data_dir / "dataset.json").read_text())
+    index_path = data_dir / "dataset.json"
+    try:
+        index = json.loads(index_path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(index_path, None, "<file>", f"not a data stage output: {exc}") from None
     root = (data_dir / index["root"]).resolve()
     records = read_records(root / index.get("labels", LABELS_FILE), root=root)
     splits = json.loads((data_dir / "splits.json").read_text())
