@@ -1,0 +1,84 @@
+"""The report's rows (methods) and box sources, as registries the evaluate stage iterates over.
+
+A method factory takes the EvalContext and returns an object with ``name`` and
+``predict(record) -> Record`` (same boxes, predicted relations and couples), or None when an upstream
+stage it needs is not among the evaluate stage's inputs (the row is then reported as skipped).
+A box source returns ``{image: Record}`` for the test split holding only boxes (relations cleared), or
+None when unavailable. Adding DeepWORD or the detector is one entry each, e.g.
+
+    METHODS["deepword"] = lambda ctx: load_onnx_relation(ctx.inputs["export"], ctx.priors) \
+        if "export" in ctx.inputs else None
+    # and in conf/config.yaml: evaluate.inputs += [export]; conf/eval: methods += [deepword]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+from stages.evaluate.baselines import (
+    CoupleRule,
+    TrainImage,
+    fit_couple_rule,
+    fit_logic,
+    fit_logic_plus,
+    fit_prior,
+    prepare_train,
+)
+from stages.word_format import Dataset, Record, read_records
+
+DETECTOR_PREDICTIONS = "predictions_test.jsonl"
+
+
+@dataclass
+class EvalContext:
+    """What method factories and box sources may use: the evaluate config, inputs, dataset and priors."""
+
+    cfg: object            # the `eval` config subtree
+    seed: int
+    inputs: dict[str, Path]
+    dataset: Dataset
+    priors: object         # stages.priors.mixture.Priors
+    notes: list[str] = field(default_factory=list)
+
+    @cached_property
+    def train(self) -> list[TrainImage]:
+        return prepare_train(self.dataset.subset("train"), float(self.cfg.min_box_px), int(self.cfg.fit_images),
+                             self.seed)
+
+    @cached_property
+    def couple_rule(self) -> CoupleRule:
+        return fit_couple_rule(self.train)
+
+
+METHODS: dict[str, Callable[[EvalContext], object | None]] = {
+    "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule),
+    "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule),
+    "prior": lambda ctx: fit_prior(ctx.train, ctx.priors),
+}
+
+
+def boxes_only(rec: Record) -> Record:
+    """The record's boxes without its relations or couples: what a method gets to see."""
+    return replace(rec, boxes=rec.boxes.copy(), relations=[], wheel_pairs=[])
+
+
+def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
+    return {r.image: boxes_only(r) for r in ctx.dataset.subset("test")}
+
+
+def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
+    """The detector's WORD-format predictions of the test split (``predictions_test.jsonl``)."""
+    if "detector" not in ctx.inputs:
+        return None
+    path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS
+    records = read_records(path, root=ctx.dataset.root, allow_empty=True)
+    return {r.image: boxes_only(r) for r in records}
+
+
+BOX_SOURCES: dict[str, Callable[[EvalContext], dict[str, Record] | None]] = {
+    "gt": gt_boxes,
+    "detected": detected_boxes,
+}
