@@ -1,0 +1,56 @@
+"""Training curves of the relation network: a Lightning callback that records them per epoch and a
+PNG of loss and val wheel_acc, logged with the stage's artifacts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+
+
+class CurveHistory(L.Callback):
+    """Per validated epoch: train/loss (when an epoch of training preceded it), val/loss, val/wheel_acc."""
+
+    def __init__(self):
+        self.rows: list[dict[str, float]] = []
+
+    def on_validation_epoch_end(self, trainer, pl_module):
+        if trainer.sanity_checking:
+            return
+        m = trainer.callback_metrics
+        row = {"epoch": float(trainer.current_epoch)}
+        for key in ("train/loss", "val/loss", "val/wheel_acc"):
+            if key in m:
+                row[key] = float(m[key])
+        self.rows.append(row)
+
+
+def plot_curves(rows: list[dict[str, float]], path: Path) -> Path:
+    """Two panels: losses (log scale) and val wheel_acc (percent) over epochs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, (ax_loss, ax_acc) = plt.subplots(1, 2, figsize=(9, 3.5))
+    for key, label in (("train/loss", "train loss"), ("val/loss", "val loss")):
+        pts = [(r["epoch"], r[key]) for r in rows if key in r]
+        if pts:
+            ax_loss.plot(*zip(*pts, strict=True), marker="o", ms=3, label=label)
+    ax_loss.set_yscale("log")
+    ax_loss.set_xlabel("epoch")
+    ax_loss.set_title("weighted L2 loss")
+    ax_loss.legend()
+    pts = [(r["epoch"], r["val/wheel_acc"]) for r in rows if "val/wheel_acc" in r]
+    if pts:
+        ax_acc.plot(*zip(*pts, strict=True), marker="o", ms=3, color="tab:green")
+    ax_acc.set_xlabel("epoch")
+    ax_acc.set_ylabel("%")
+    ax_acc.set_title("val wheel_acc")
+    ax_acc.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,184 @@
+"""Lightning wrappers of the relation network: dataset and data module over cached split inputs, and the
+training module (weighted L2 loss, decoding, metrics). The network itself is ``model.RelationNet``."""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, Dataset
+from torchmetrics import Metric
+
+from stages.relation.decode import (
+    decode_couples,
+    decode_owners,
+    metrics_from_counts,
+    relation_counts,
+    type_masks,
+)
+from stages.relation.inputs import SplitInputs, node_tensor
+from stages.relation.model import ModelConfig, RelationNet
+
+COUNT_KEYS = ("wheels", "wheels_correct", "images", "images_correct", "pair_tp", "pair_fp", "pair_fn",
+              "couple_tp", "couple_fp", "couple_fn")
+
+
+class GraphDataset(Dataset):
+    """One padded graph per image. ``hflip``: probability of mirroring an image's graph left-right (crops
+    flipped, x coordinates mirrored); distance ratios, adjacency, targets and roles are unchanged by it."""
+
+    def __init__(self, split: SplitInputs, hflip: float = 0.0):
+        self.split = split
+        self.crops = torch.from_numpy(split.crops)
+        self.offsets = split.offsets
+        self.tensors = {k: torch.from_numpy(getattr(split, k)) for k in
+                        ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role")}
+        self.hflip = hflip
+
+    def __len__(self) -> int:
+        return len(self.split)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        start, stop = int(self.offsets[i]), int(self.offsets[i + 1])
+        n = self.tensors["classes"].shape[1]
+        crops = torch.zeros((n, *self.crops.shape[1:]), dtype=torch.uint8)
+        crops[: stop - start] = self.crops[start:stop]
+        item = {k: v[i] for k, v in self.tensors.items()}
+        item["classes"] = item["classes"].long()
+        item["role"] = item["role"].long()
+        if self.hflip > 0 and torch.rand(()) < self.hflip:
+            crops = crops.flip(-1)
+            coords = item["coords"].clone()
+            k = stop - start
+            coords[:k, 0], coords[:k, 2] = 1.0 - item["coords"][:k, 2], 1.0 - item["coords"][:k, 0]
+            item["coords"] = coords
+        item["crops"] = crops
+        return item
+
+
+class RelationDataModule(L.LightningDataModule):
+    def __init__(self, train: SplitInputs, val: SplitInputs, batch_size: int, hflip: float = 0.0):
+        super().__init__()
+        self.train_split, self.val_split = train, val
+        self.batch_size, self.hflip = batch_size, hflip
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(GraphDataset(self.train_split, self.hflip), batch_size=self.batch_size, shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(GraphDataset(self.val_split), batch_size=self.batch_size)
+
+
+class RelationCounts(Metric):
+    """Sums of ``decode.relation_counts`` over batches (and processes, under DDP)."""
+
+    def __init__(self):
+        super().__init__()
+        for key in COUNT_KEYS:
+            self.add_state(key, default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
+
+    def update(self, counts: dict[str, torch.Tensor]) -> None:
+        for key in COUNT_KEYS:
+            setattr(self, key, getattr(self, key) + counts[key].to(torch.long))
+
+    def compute(self) -> dict[str, float]:
+        return metrics_from_counts({k: float(getattr(self, k)) for k in COUNT_KEYS})
+
+
+def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, pos_weight: float,
+                neg_weight: float) -> torch.Tensor:
+    """Mean over masked pairs of pos_weight (s - 1)^2 on true pairs and neg_weight s^2 on the others."""
+    t = target.to(scores.dtype)
+    err = pos_weight * t * (scores - 1.0) ** 2 + neg_weight * (1.0 - t) * scores**2
+    m = mask.to(scores.dtype)
+    return (err * m).sum() / m.sum().clamp_min(1.0)
+
+
+def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
+                  role_weight: float) -> dict[str, torch.Tensor]:
+    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE."""
+    owner_scores, couple_scores, front = outputs
+    wv, ww = type_masks(batch["classes"])
+    cand = batch["cand"].bool()
+    owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
+    couple = weighted_l2(couple_scores, batch["couple"], ww & cand, pos_weight, neg_weight)
+    known = ((batch["role"] >= 0) & batch["valid"].bool()).to(front.dtype)
+    target = batch["role"].clamp_min(0).to(front.dtype)
+    bce = torch.nn.functional.binary_cross_entropy(front.clamp(1e-6, 1 - 1e-6), target, reduction="none")
+    role = (bce * known).sum() / known.sum().clamp_min(1.0)
+    return {"loss": owner + couple + role_weight * role, "owner": owner, "couple": couple, "role": role}
+
+
+class RelationModule(L.LightningModule):
+    """Training and validation of RelationNet. Hyper-parameters are plain dicts (checkpoint-safe)."""
+
+    def __init__(self, model: dict, loss: dict, decode: dict, optim: dict):
+        super().__init__()
+        self.save_hyperparameters()
+        self.model = RelationNet(ModelConfig(**model))
+        self.val_counts = RelationCounts()
+
+    def node_features(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Backbone features of the valid nodes only (padding and masked objects are skipped, which also
+        keeps them out of BatchNorm statistics); zeros elsewhere. Same values as ``model.embed``."""
+        valid = batch["valid"].bool()
+        feats = self.model.backbone(node_tensor(batch["crops"][valid], batch["coords"][valid]))
+        h = feats.new_zeros((*valid.shape, feats.shape[-1]))
+        h[valid] = feats
+        return h
+
+    def forward(self, batch: dict[str, torch.Tensor]):
+        return self.model.relate(self.node_features(batch), batch["adj"], batch["cand"])
+
+    def _loss(self, outputs, batch):
+        lc = self.hparams.loss
+        return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"])
+
+    def training_step(self, batch, batch_idx):
+        losses = self._loss(self(batch), batch)
+        loss = losses["loss"]
+        if not torch.isfinite(loss):
+            raise FloatingPointError(
+                f"relation: training loss is {loss.item()} (owner {losses['owner'].item()}, couple "
+                f"{losses['couple'].item()}, role {losses['role'].item()}) at epoch {self.current_epoch}, batch "
+                f"{batch_idx}; training stopped. Check the inputs for NaN/inf or lower relation.train.lr.")
+        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(batch["classes"]))
+        return loss
+
+    def decide(self, outputs, batch):
+        dc = self.hparams.decode
+        owner_scores, couple_scores, _ = outputs
+        pred_owner = decode_owners(owner_scores, batch["classes"], batch["cand"], dc["threshold"], dc["one_owner"])
+        pred_couple = decode_couples(couple_scores, batch["classes"], batch["cand"], dc["threshold"])
+        return pred_owner, pred_couple
+
+    def validation_step(self, batch, batch_idx):
+        outputs = self(batch)
+        self.log("val/loss", self._loss(outputs, batch)["loss"], on_epoch=True, batch_size=len(batch["classes"]),
+                 sync_dist=True)
+        pred_owner, pred_couple = self.decide(outputs, batch)
+        self.val_counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"],
+                                               batch["classes"]))
+
+    def on_validation_epoch_end(self):
+        metrics = self.val_counts.compute()
+        self.val_counts.reset()
+        self.log("val/wheel_acc", metrics.pop("wheel_acc"), prog_bar=True)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()})
+
+    def configure_optimizers(self):
+        oc = self.hparams.optim
+        opt = torch.optim.AdamW(self.parameters(), lr=oc["lr"], weight_decay=oc["weight_decay"])
+        epochs = max(int(self.trainer.max_epochs or 1), 1)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs, eta_min=oc["lr"] * 0.01)
+        return {"optimizer": opt, "lr_scheduler": sched}
+
+
+@torch.no_grad()
+def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> dict[str, float]:
+    """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU."""
+    module = module.eval()
+    counts = RelationCounts()
+    for batch in DataLoader(GraphDataset(split), batch_size=batch_size):
+        pred_owner, pred_couple = module.decide(module(batch), batch)
+        counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"]))
+    return counts.compute()

@@ -1,0 +1,188 @@
+"""The DeepWORD relation network as a plain torch module (DESIGN §6), written to export to ONNX.
+
+    x (B, N, 7, S, S) --backbone--> h (B, N, H) --GAT re-weighting of adj (Eq. 3-5)--> W'
+    --graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings
+    --> cosine scores: ownership (wheel-vehicle pairs) and couples (wheel-wheel pairs); a role head
+    gives each wheel's probability of being a front wheel (orders predicted couples rear -> front).
+
+Two embedding heads, because one cosine space cannot hold both relations: if two wheels both had
+cosine 1 with their vehicle they would have cosine 1 with each other, yet two wheels of one vehicle on
+different sides are not a couple. No data-dependent control flow and no boolean indexing in
+``forward``: padding and masking are multiplications, so static and dynamic object counts export alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+BACKBONES = ("conv_fc", "resnet18")
+IN_CHANNELS = 7
+_MASKED_LOGIT = -1e9  # softmax logit of a non-neighbour: exp underflows to exactly 0
+
+
+# --- backbones ---------------------------------------------------------------------------------------
+
+class ConvFC(nn.Module):
+    """Conv+fc node encoder: ``stages`` stride-2 conv3x3-BN-ReLU blocks (widths base*expansion*2^k), then
+    a fully connected layer over the flattened map, which keeps where in the crop things are."""
+
+    def __init__(self, input_size: int, expansion: int, out_dim: int, base_channels: int = 4, stages: int = 3):
+        super().__init__()
+        layers, c_in, side = [], IN_CHANNELS, input_size
+        for k in range(stages):
+            c = base_channels * expansion * 2**k
+            layers += [nn.Conv2d(c_in, c, 3, stride=2, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU()]
+            c_in, side = c, (side + 1) // 2
+        self.features = nn.Sequential(*layers)
+        self.fc = nn.Linear(c_in * side * side, out_dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc(torch.flatten(self.features(x), 1))
+
+
+class BasicBlock(nn.Module):
+    """ResNet basic block: two conv3x3-BN, identity (or 1x1 projection) shortcut."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False)
+        self.bn1 = nn.BatchNorm2d(c_out)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1, bias=False)
+        self.bn2 = nn.BatchNorm2d(c_out)
+        self.shortcut = nn.Sequential()
+        if stride != 1 or c_in != c_out:
+            self.shortcut = nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride=stride, bias=False), nn.BatchNorm2d(c_out))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = F.relu(self.bn1(self.conv1(x)))
+        return F.relu(self.bn2(self.conv2(out)) + self.shortcut(x))
+
+
+class ResNet18(nn.Module):
+    """ResNet-18 (He et al.): 7x7/2 stem + 3x3/2 max-pool, four stages of two basic blocks, global
+    average pool, fc. ``base_width`` 64 is the standard network; smaller widths are for tests."""
+
+    def __init__(self, out_dim: int, base_width: int = 64):
+        super().__init__()
+        w = base_width
+        self.stem = nn.Sequential(nn.Conv2d(IN_CHANNELS, w, 7, stride=2, padding=3, bias=False), nn.BatchNorm2d(w),
+                                  nn.ReLU(), nn.MaxPool2d(3, stride=2, padding=1))
+        blocks, c_in = [], w
+        for k, stride in enumerate((1, 2, 2, 2)):
+            c = w * 2**k
+            blocks += [BasicBlock(c_in, c, stride), BasicBlock(c, c, 1)]
+            c_in = c
+        self.blocks = nn.Sequential(*blocks)
+        self.fc = nn.Linear(c_in, out_dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc(self.blocks(self.stem(x)).mean(dim=(2, 3)))
+
+
+def build_backbone(name: str, input_size: int, expansion: int, out_dim: int, base_width: int = 64) -> nn.Module:
+    if name == "conv_fc":
+        return ConvFC(input_size, expansion, out_dim)
+    if name == "resnet18":
+        return ResNet18(out_dim, base_width)
+    raise ValueError(f"unknown relation backbone {name!r}; choose one of {BACKBONES}")
+
+
+# --- graph part ---------------------------------------------------------------------------------------
+
+class EdgeAttention(nn.Module):
+    """Eq. 3-5: e_ij = FC(ReLU(FC(concat(x_i, x_j)))), Scale_ij = softmax of e_ij over i's neighbours.
+    The first FC on the concatenation is split into its x_i and x_j halves (the same linear map) so the
+    (B, N, N, 2H) concatenation is never built."""
+
+    def __init__(self, dim: int, hidden: int):
+        super().__init__()
+        self.fc1 = nn.Linear(2 * dim, hidden)
+        self.fc2 = nn.Linear(hidden, 1)
+        self.dim = dim
+
+    def forward(self, h: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+        w_i, w_j = self.fc1.weight[:, : self.dim], self.fc1.weight[:, self.dim :]
+        pair = F.linear(h, w_i, self.fc1.bias).unsqueeze(2) + F.linear(h, w_j).unsqueeze(1)  # (B, N, N, hidden)
+        logits = self.fc2(F.relu(pair)).squeeze(-1)
+        logits = torch.where(neighbours, logits, torch.full_like(logits, _MASKED_LOGIT))
+        # a node without neighbours (padding) gets a uniform row from softmax: zero it
+        return torch.softmax(logits, dim=-1) * neighbours.to(logits.dtype)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    backbone: str = "conv_fc"
+    input_size: int = 56
+    expansion: int = 4
+    base_width: int = 64
+    hidden: int = 128
+    embed_dim: int = 64
+    gat: bool = True
+    gat_hidden: int = 64
+    gcn_layers: int = 2
+
+    @classmethod
+    def from_cfg(cls, rel) -> ModelConfig:
+        b, m = rel.backbone, rel.model
+        return cls(backbone=str(b.name), input_size=int(b.input_size), expansion=int(b.expansion),
+                   base_width=int(b.get("base_width", 64)), hidden=int(m.hidden), embed_dim=int(m.embed_dim),
+                   gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers))
+
+
+class RelationNet(nn.Module):
+    """Inputs: x (B, N, 7, S, S) node tensors, adj (B, N, N) edge weights (self-loops on valid nodes),
+    cand (B, N, N) 0/1 candidate pairs. Outputs: ownership scores (B, N, N), couple scores (B, N, N),
+    both cosines multiplied by cand, and front probability (B, N)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.backbone = build_backbone(cfg.backbone, cfg.input_size, cfg.expansion, cfg.hidden, cfg.base_width)
+        self.attention = EdgeAttention(cfg.hidden, cfg.gat_hidden) if cfg.gat else None
+        self.gcn = nn.ModuleList(nn.Linear(cfg.hidden, cfg.hidden) for _ in range(cfg.gcn_layers))
+        self.owner_head = nn.Linear(cfg.hidden, cfg.embed_dim)
+        self.couple_head = nn.Linear(cfg.hidden, cfg.embed_dim)
+        self.role_head = nn.Linear(cfg.hidden, 1)
+
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        """Backbone over every node: (B, N, 7, S, S) -> (B, N, hidden)."""
+        b, n = x.shape[0], x.shape[1]
+        return self.backbone(x.flatten(0, 1)).reshape(b, n, self.cfg.hidden)
+
+    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """W' = adj * Scale (Eq. 5; Scale = 1 without GAT), row-normalised for the graph convolution so
+        that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale)."""
+        neighbours = adj > 0
+        scale = self.attention(h, neighbours) if self.attention is not None else neighbours.to(adj.dtype)
+        weights = adj * scale
+        return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12), scale
+
+    def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
+        """Graph part on backbone features h (B, N, hidden)."""
+        weights, _ = self.edge_weights(h, adj)
+        for layer in self.gcn:
+            h = F.relu(layer(weights @ h))
+        owner = F.normalize(self.owner_head(h), dim=-1)
+        couple = F.normalize(self.couple_head(h), dim=-1)
+        cand = cand.to(h.dtype)
+        owner_scores = (owner @ owner.transpose(1, 2)) * cand
+        couple_scores = (couple @ couple.transpose(1, 2)) * cand
+        front = torch.sigmoid(self.role_head(h).squeeze(-1))
+        return owner_scores, couple_scores, front
+
+    def forward(self, x: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
+        return self.relate(self.embed(x), adj, cand)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def size_mb(model: nn.Module) -> float:
+    """Parameters and buffers (BN statistics) in MB, as a float32 state_dict holds them."""
+    n_bytes = sum(t.numel() * t.element_size() for t in model.state_dict().values())
+    return n_bytes / 2**20
