@@ -1,0 +1,127 @@
+"""The stage graph declared under ``cfg.pipeline.stages``: parsing, validation and ordering.
+
+Every problem (unknown input, cycle, unknown config key, malformed ``run``) is reported before any
+stage runs, naming the stage and the field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from pipeline.errors import PipelineError
+
+STAGE_FIELDS = {"run", "inputs", "config", "watch"}
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """One DAG node: ``run`` is ``module:function``; ``config`` lists top-level config keys."""
+
+    name: str
+    module: str
+    function: str
+    inputs: tuple[str, ...]
+    config: tuple[str, ...]
+    watch: tuple[str, ...]
+
+
+def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if isinstance(value, ListConfig):
+        value = OmegaConf.to_container(value, resolve=True)
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise PipelineError(f"pipeline.stages.{stage}.{field}: expected a list of strings, got {value!r}")
+    return tuple(value)
+
+
+def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
+    if not isinstance(node, DictConfig):
+        raise PipelineError(f"pipeline.stages.{name}: expected a mapping with run/inputs/config, got {node!r}")
+    unknown = set(node.keys()) - STAGE_FIELDS
+    if unknown:
+        raise PipelineError(f"pipeline.stages.{name}: unknown field(s) {sorted(unknown)}; allowed: {sorted(STAGE_FIELDS)}")
+    run = node.get("run")
+    if not isinstance(run, str) or run.count(":") != 1 or not all(run.split(":")):
+        raise PipelineError(f"pipeline.stages.{name}.run: expected 'package.module:function', got {run!r}")
+    module, function = run.split(":")
+    config = _str_list(name, "config", node.get("config"))
+    missing = [k for k in config if k not in cfg]
+    if missing:
+        raise PipelineError(
+            f"pipeline.stages.{name}.config: unknown top-level config key(s) {missing}; "
+            f"known keys: {sorted(str(k) for k in cfg.keys())}"
+        )
+    return StageSpec(
+        name=name,
+        module=module,
+        function=function,
+        inputs=_str_list(name, "inputs", node.get("inputs")),
+        config=config,
+        watch=_str_list(name, "watch", node.get("watch")),
+    )
+
+
+def topological_order(specs: dict[str, StageSpec]) -> list[str]:
+    """Stages in dependency order (ties in declaration order); raises on a cycle."""
+    order: list[str] = []
+    state: dict[str, str] = {}
+
+    def visit(name: str, path: list[str]) -> None:
+        if state.get(name) == "done":
+            return
+        if state.get(name) == "active":
+            cycle = path[path.index(name):] + [name]
+            raise PipelineError(f"pipeline.stages: dependency cycle {' -> '.join(cycle)}")
+        state[name] = "active"
+        for dep in specs[name].inputs:
+            visit(dep, path + [name])
+        state[name] = "done"
+        order.append(name)
+
+    for name in specs:
+        visit(name, [])
+    return order
+
+
+def load_stages(cfg: DictConfig) -> dict[str, StageSpec]:
+    """Parse and validate every declared stage; returns them in topological order."""
+    stages_node = OmegaConf.select(cfg, "pipeline.stages")
+    if not isinstance(stages_node, DictConfig) or len(stages_node) == 0:
+        raise PipelineError("pipeline.stages: no stages declared")
+    specs = {str(name): _parse_stage(str(name), stages_node[name], cfg) for name in stages_node}
+    for spec in specs.values():
+        unknown = [i for i in spec.inputs if i not in specs]
+        if unknown:
+            raise PipelineError(
+                f"pipeline.stages.{spec.name}.inputs: unknown stage(s) {unknown}; declared stages: {list(specs)}"
+            )
+    return {name: specs[name] for name in topological_order(specs)}
+
+
+def ancestors(specs: dict[str, StageSpec], name: str) -> set[str]:
+    """``name`` and every stage it needs, transitively."""
+    needed, todo = set(), [name]
+    while todo:
+        current = todo.pop()
+        if current not in needed:
+            needed.add(current)
+            todo.extend(specs[current].inputs)
+    return needed
+
+
+def check_stage_names(specs: dict[str, StageSpec], names: list[str], field: str) -> None:
+    unknown = [n for n in names if n not in specs]
+    if unknown:
+        raise PipelineError(f"{field}: unknown stage(s) {unknown}; declared stages: {list(specs)}")
+
+
+def select_stages(specs: dict[str, StageSpec], until: str | None) -> list[str]:
+    """Stages to run, in order: all of them, or ``until`` and its ancestors."""
+    if until is None:
+        return list(specs)
+    check_stage_names(specs, [until], "pipeline.until")
+    needed = ancestors(specs, until)
+    return [n for n in specs if n in needed]

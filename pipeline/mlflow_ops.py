@@ -1,0 +1,69 @@
+"""The MLflow operations the engine performs, on an ``MlflowClient`` with its batch APIs.
+
+Used either in-process or inside the tracking worker (``pipeline.mlflow_worker``); arguments and
+results are plain JSON values so both paths share this one implementation. ``mlflow`` is imported
+only when an instance is created: it is the slowest import of a no-op run.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+MAX_PARAMS_PER_BATCH = 100
+MAX_METRICS_PER_BATCH = 1000
+
+
+class MlflowOps:
+    def __init__(self, uri: str, experiment: str):
+        from mlflow.tracking import MlflowClient
+
+        self.uri = uri
+        self.client = MlflowClient(tracking_uri=uri)
+        self.experiment_id = self._experiment_id(experiment)
+
+    def _experiment_id(self, name: str) -> str:
+        found = self.client.get_experiment_by_name(name)
+        if found is not None:
+            return found.experiment_id
+        try:
+            return self.client.create_experiment(name)
+        except Exception:  # a concurrent pipeline created it first
+            found = self.client.get_experiment_by_name(name)
+            if found is None:
+                raise
+            return found.experiment_id
+
+    def create_run(self, run_name: str, tags: dict[str, str], parent_id: str | None = None) -> str:
+        tags = dict(tags)
+        if parent_id:
+            tags["mlflow.parentRunId"] = parent_id
+        run = self.client.create_run(self.experiment_id, run_name=run_name, tags=tags)
+        return run.info.run_id
+
+    def log(self, run_id: str, metrics: dict | None = None, params: dict | None = None,
+            tags: dict | None = None) -> None:
+        from mlflow.entities import Metric, Param, RunTag
+
+        now = int(time.time() * 1000)
+        metric_list = [Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()]
+        param_list = [Param(k, str(v)) for k, v in (params or {}).items()]
+        tag_list = [RunTag(k, str(v)) for k, v in (tags or {}).items()]
+        # One request when it fits; MLflow caps a batch at 100 params and 1000 metrics.
+        while metric_list or param_list or tag_list:
+            self.client.log_batch(
+                run_id,
+                metrics=metric_list[:MAX_METRICS_PER_BATCH],
+                params=param_list[:MAX_PARAMS_PER_BATCH],
+                tags=tag_list[:100],
+            )
+            metric_list = metric_list[MAX_METRICS_PER_BATCH:]
+            param_list = param_list[MAX_PARAMS_PER_BATCH:]
+            tag_list = tag_list[100:]
+
+    def log_artifacts(self, run_id: str, directory: str) -> None:
+        if Path(directory).is_dir() and any(Path(directory).iterdir()):
+            self.client.log_artifacts(run_id, directory)
+
+    def end(self, run_id: str, status: str = "FINISHED") -> None:
+        self.client.set_terminated(run_id, status=status)

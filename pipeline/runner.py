@@ -1,0 +1,266 @@
+"""``run_pipeline(cfg)``: validate, plan, run the missing stages, record everything in MLflow.
+
+Order matters for speed and safety: everything that can fail on configuration (stage graph, force/until
+names, config keys, server reachability) is checked before any stage runs, and hits are decided from
+key parts alone, before any stage module is imported.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import time
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from pipeline import tracking
+from pipeline.cache import VERIFY_MODES, Cache, Entry, now_iso
+from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
+from pipeline.errors import PipelineError
+from pipeline.keys import key_parts, resolved_subtree
+from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
+from pipeline.report import summary_table, write_summary
+from pipeline.tracker import check_server, flatten_params, open_tracker
+
+
+def _say(message: str) -> None:
+    print(message, flush=True)
+
+
+def _hydra_runtime() -> tuple[Path | None, Path | None, list[str]]:
+    """(launch dir, run output dir, task overrides) when running under Hydra, else (None, None, [])."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return None, None, []
+    hc = HydraConfig.get()
+    return Path(hc.runtime.cwd), Path(hc.runtime.output_dir), list(hc.overrides.task)
+
+
+def _git_commit(where: Path) -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=5, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip() if out.returncode == 0 and out.stdout.strip() else "unknown"
+
+
+def _settings(cfg: DictConfig, launch_dir: Path) -> dict:
+    p = cfg.pipeline
+    force = list(p.get("force") or [])
+    until = p.get("until")
+    verify = p.get("verify", "fast")
+    if verify not in VERIFY_MODES:
+        raise PipelineError(f"pipeline.verify: expected one of {VERIFY_MODES}, got {verify!r}")
+    cache_dir = Path(str(p.cache_dir)).expanduser()
+    if not cache_dir.is_absolute():
+        cache_dir = launch_dir / cache_dir
+    t = cfg.get("tracking")
+    if t is None:
+        raise PipelineError("config has no 'tracking' group (tracking.uri, tracking.experiment)")
+    return {
+        "force": force, "until": until, "verify": verify, "cache_dir": cache_dir,
+        "uri": str(t.uri), "experiment": str(t.get("experiment", "deepword")),
+        "require_server": bool(t.get("require_server", False)),
+    }
+
+
+def _plan(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfig, cache: Cache,
+          force: list[str], verify: str) -> list[StagePlan]:
+    keys: dict[str, str] = {}
+    plans = []
+    for name in selected:
+        spec = specs[name]
+        try:
+            parts = key_parts(spec, cfg, keys)
+        except OmegaConfBaseException as exc:
+            raise PipelineError(f"stage '{name}': cannot resolve its config {list(spec.config)}: {exc}") from exc
+        keys[name] = parts.key
+        latest = cache.read_latest(name)
+        if name in force:
+            plans.append(StagePlan(name, parts, hit=False, reason="forced (pipeline.force)", forced=True))
+            continue
+        entry, problem = cache.lookup(name, parts.key, verify)
+        if entry is not None:
+            plans.append(StagePlan(name, parts, hit=True, reason=explain_hit(parts, latest), entry=entry))
+        else:
+            plans.append(StagePlan(name, parts, hit=False, reason=explain_miss(parts, latest, problem)))
+    return plans
+
+
+def _check_metrics(stage: str, metrics) -> dict[str, float]:
+    if metrics is None:
+        return {}
+    if not isinstance(metrics, dict):
+        raise PipelineError(f"stage '{stage}' returned {type(metrics).__name__}, expected a dict of metrics")
+    out = {}
+    for k, v in metrics.items():
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise PipelineError(f"stage '{stage}': metric {k!r} is {v!r}, expected a number")
+        out[str(k)] = float(v)
+    return out
+
+
+def _stage_cfg(cfg: DictConfig, spec: StageSpec) -> DictConfig:
+    """Only the declared keys, resolved (exactly what the key hashes), read-only."""
+    sub = OmegaConf.create(resolved_subtree(cfg, spec.config))
+    OmegaConf.set_readonly(sub, True)
+    OmegaConf.set_struct(sub, True)
+    return sub
+
+
+def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
+             inputs: dict[str, Path], run_id: str, uri: str) -> Entry:
+    """Run the stage into a temp dir and commit it; the caller holds the key's lock."""
+    tmp = cache.begin(spec.name, plan.key)
+    start = time.perf_counter()
+    try:
+        func = getattr(importlib.import_module(spec.module), spec.function, None)
+        if func is None:
+            raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
+        tracking.set_active((uri, run_id))
+        try:
+            metrics = _check_metrics(spec.name, func(_stage_cfg(cfg, spec), inputs, tmp / "out"))
+        finally:
+            tracking.set_active(None)
+        seconds = time.perf_counter() - start
+        manifest = {
+            "stage": spec.name, "parts": plan.parts.to_json(), "metrics": metrics, "seconds": seconds,
+            "mlflow_run_id": run_id, "created": now_iso(),
+        }
+        return cache.commit(spec.name, plan.key, tmp, manifest)
+    except BaseException:
+        cache.abort(tmp)
+        raise
+
+
+def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
+               outputs: dict[str, Path], settings: dict) -> dict:
+    name, key = plan.name, plan.key
+    inputs = {i: outputs[i] for i in spec.inputs}
+    start = time.perf_counter()
+    entry = plan.entry
+    if not plan.hit:
+        with cache.lock(name, key, on_wait=lambda: _say(f"Stage '{name}': waiting for another pipeline computing it")):
+            if not plan.forced:
+                entry, _ = cache.lookup(name, key, settings["verify"])
+                if entry is not None:
+                    plan.hit, plan.reason = True, "computed meanwhile by a concurrent pipeline"
+            if entry is None:
+                _say(f"Running stage '{name}' ({plan.reason})")
+                run_id = tracker.create_run(name, {"cache": "miss", "cache_key": key, "stage": name}, parent_id)
+                try:
+                    entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"])
+                except BaseException:
+                    tracker.end(run_id, "FAILED")
+                    raise
+    seconds = time.perf_counter() - start
+    metrics = dict(entry.manifest.get("metrics", {}))
+    computed_by = entry.manifest.get("mlflow_run_id", "")
+    if plan.hit:
+        _say(f"Stage '{name}' didn't change, skipping" if plan.reason == "didn't change"
+             else f"Stage '{name}': {plan.reason}, using it")
+        run_id = tracker.create_run(
+            name, {"cache": "hit", "cache_key": key, "stage": name, "computed_by_run": computed_by}, parent_id
+        )
+    else:
+        run_id = computed_by
+        tracker.log_artifacts(run_id, str(entry.out_dir / "artifacts"))
+        _say(f"Stage '{name}' done in {seconds:.1f} s")
+    tracker.log(run_id, metrics={**metrics, f"{name}.seconds": seconds},
+                tags={"computed_by_run": computed_by, "computed_seconds": f"{entry.manifest.get('seconds', 0):.3f}"})
+    tracker.end(run_id, "FINISHED")
+    if cache.read_latest(name) != plan.parts.to_json():
+        cache.write_latest(name, plan.parts.to_json())
+    return {
+        "key": key, "hit": plan.hit, "reason": plan.reason, "seconds": seconds,
+        "output_dir": str(entry.out_dir), "metrics": metrics, "mlflow_run_id": run_id,
+        "computed_by_run": computed_by,
+    }
+
+
+def _run_name(cfg: DictConfig, overrides: list[str]) -> str:
+    shown = [o for o in overrides if not o.startswith("profile=")]
+    return " ".join([str(cfg.get("profile_name", "pipeline")), *shown])
+
+
+def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracking: bool | None = None) -> dict:
+    """Run the DAG declared in ``cfg.pipeline.stages``; returns the summary (also in ``summary.json``).
+
+    ``run_dir`` defaults to Hydra's run output directory (the launch directory outside Hydra).
+    ``in_process_tracking``: None picks in-process MLflow when it is already imported, else the worker.
+    """
+    t0 = time.perf_counter()
+    launch_dir, hydra_dir, overrides = _hydra_runtime()
+    launch_dir = launch_dir or Path(os.getcwd())
+    run_dir = run_dir or hydra_dir or launch_dir
+    settings = _settings(cfg, launch_dir)
+    specs = load_stages(cfg)
+    check_stage_names(specs, settings["force"], "pipeline.force")
+    selected = select_stages(specs, settings["until"])
+    skipped = [n for n in specs if n not in selected]
+    if settings["require_server"]:
+        check_server(settings["uri"])
+    cache = Cache(settings["cache_dir"])
+    plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"])
+    _say(format_plan(plans, str(cache.root), skipped))
+    ignored = [n for n in settings["force"] if n in skipped]
+    if ignored:
+        _say(f"note: forced stage(s) {ignored} are not needed for pipeline.until={settings['until']}; not run")
+    for name in selected:
+        cache.sweep(name)
+
+    tracker = open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
+    try:
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, skipped, t0)
+    finally:
+        tracker.close()
+
+
+def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, skipped, t0) -> dict:
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    parent_tags = {
+        "profile": str(cfg.get("profile_name", "")),
+        "seed": str(cfg.get("seed", "")),
+        "git_commit": _git_commit(launch_dir),
+        "overrides": " ".join(overrides),
+    }
+    parent_id = tracker.create_run(_run_name(cfg, overrides), parent_tags)
+    tracker.log(parent_id, params=flatten_params(resolved))
+    results: dict[str, dict] = {}
+    outputs: dict[str, Path] = {}
+    try:
+        for plan in plans:
+            results[plan.name] = _run_stage(plan, specs[plan.name], cfg, cache, tracker, parent_id, outputs, settings)
+            outputs[plan.name] = Path(results[plan.name]["output_dir"])
+    except BaseException:
+        tracker.end(parent_id, "FAILED")
+        raise
+    total = time.perf_counter() - t0
+    parent_metrics = {"pipeline.seconds": total}
+    for name, r in results.items():
+        parent_metrics.update(r["metrics"])
+        parent_metrics[f"{name}.seconds"] = r["seconds"]
+    tracker.log(parent_id, metrics=parent_metrics)
+    tracker.end(parent_id, "FINISHED")
+    summary = {
+        "pipeline_seconds": total,
+        "up_to_date": all(r["hit"] for r in results.values()),
+        "mlflow_run_id": parent_id,
+        "tracking_uri": settings["uri"],
+        "experiment": settings["experiment"],
+        "cache_dir": str(cache.root),
+        "stages": results,
+        "not_run": skipped,
+    }
+    write_summary(run_dir, summary)
+    _say(summary_table(summary))
+    if summary["up_to_date"]:
+        _say("Pipeline up to date.")
+    return summary
+

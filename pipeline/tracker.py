@@ -1,0 +1,157 @@
+"""The engine's side of MLflow: a server reachability check, config flattening for params, and two
+interchangeable trackers: in-process (``MlflowOps`` directly) and the worker process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+from pipeline.errors import PipelineError
+
+MAX_PARAM_CHARS = 500  # MLflow's classic limit on a param value; longer values are truncated
+MAX_KEY_CHARS = 250
+
+
+def check_server(uri: str, timeout: float = 3.0) -> None:
+    """Fail fast when a required tracking server cannot be reached (before any stage runs)."""
+    if not uri.startswith(("http://", "https://")):
+        raise PipelineError(
+            f"tracking.require_server is true but tracking.uri={uri!r} is not an http(s) server URI"
+        )
+    url = uri.rstrip("/") + "/health"
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as response:
+            if response.status != 200:
+                raise PipelineError(f"MLflow server at {uri} answered {response.status} on /health")
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise PipelineError(
+            f"MLflow tracking server {uri} is not reachable ({reason}); no stage was run. "
+            "Start it (`make ui` serves ./mlflow.db on 127.0.0.1:5000), set MLFLOW_TRACKING_URI, "
+            "or use tracking=local."
+        ) from exc
+
+
+def flatten_params(value, prefix: str = "") -> dict[str, str]:
+    """Dotted keys -> string values (lists as JSON), truncated to MLflow's limits."""
+    out: dict[str, str] = {}
+    if isinstance(value, dict):
+        for k, v in value.items():
+            out.update(flatten_params(v, f"{prefix}{k}."))
+        return out
+    key = prefix[:-1][:MAX_KEY_CHARS]
+    text = value if isinstance(value, str) else json.dumps(value)
+    if len(text) > MAX_PARAM_CHARS:
+        text = text[: MAX_PARAM_CHARS - 14] + "...[truncated]"
+    out[key] = text
+    return out
+
+
+class InProcessTracker:
+    """MLflow calls in this process (cheap when MLflow is already imported, e.g. under pytest)."""
+
+    def __init__(self, uri: str, experiment: str):
+        from pipeline.mlflow_ops import MlflowOps
+
+        try:
+            self._ops = MlflowOps(uri, experiment)
+        except Exception as exc:
+            raise PipelineError(f"cannot open MLflow tracking store {uri!r}: {exc}") from exc
+
+    def __getattr__(self, op):
+        return getattr(self._ops, op)
+
+    def close(self) -> None:
+        pass
+
+
+class WorkerTracker:
+    """MLflow calls forwarded to ``python -m pipeline.mlflow_worker`` (see that module for why)."""
+
+    def __init__(self):
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parent.parent)
+        env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "") if env.get("PYTHONPATH") else root
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "pipeline.mlflow_worker"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+        )
+        self._opened = False
+
+    def open(self, uri: str, experiment: str) -> None:
+        try:
+            self._call("init", uri=uri, experiment=experiment)
+        except PipelineError as exc:
+            raise PipelineError(f"cannot open MLflow tracking store {uri!r}: {exc}") from exc
+        self._opened = True
+
+    def _call(self, op: str, **args):
+        try:
+            self._proc.stdin.write(json.dumps({"op": op, "args": args}) + "\n")
+            self._proc.stdin.flush()
+            line = self._proc.stdout.readline()
+        except (BrokenPipeError, OSError):
+            line = ""
+        if not line:
+            raise PipelineError("the MLflow tracking worker exited unexpectedly (see its messages above)")
+        reply = json.loads(line)
+        if not reply["ok"]:
+            raise PipelineError(f"MLflow '{op}' failed: {reply['error']}")
+        return reply["result"]
+
+    def create_run(self, run_name, tags, parent_id=None):
+        return self._call("create_run", run_name=run_name, tags=tags, parent_id=parent_id)
+
+    def log(self, run_id, metrics=None, params=None, tags=None):
+        return self._call("log", run_id=run_id, metrics=metrics, params=params, tags=tags)
+
+    def log_artifacts(self, run_id, directory):
+        return self._call("log_artifacts", run_id=run_id, directory=directory)
+
+    def end(self, run_id, status="FINISHED"):
+        return self._call("end", run_id=run_id, status=status)
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            try:
+                self._call("close")
+            except PipelineError:
+                pass
+            self._proc.stdin.close()
+            try:
+                self._proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+
+
+_prestarted: WorkerTracker | None = None
+
+
+def prestart_worker() -> None:
+    """Start the worker now so MLflow imports while Hydra composes the config (CLI only)."""
+    global _prestarted
+    if _prestarted is None:
+        _prestarted = WorkerTracker()
+
+
+def open_tracker(uri: str, experiment: str, in_process: bool | None = None):
+    """A tracker for ``uri``; by default in-process if MLflow is already imported, else the worker."""
+    global _prestarted
+    if in_process is None:
+        in_process = "mlflow" in sys.modules
+    if in_process:
+        return InProcessTracker(uri, experiment)
+    worker, _prestarted = (_prestarted or WorkerTracker()), None
+    try:
+        worker.open(uri, experiment)
+    except PipelineError:
+        worker.close()
+        raise
+    return worker
