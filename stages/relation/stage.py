@@ -47,10 +47,8 @@ def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, ca
 
 def _tracking_logger():
     """Lightning's MLFlowLogger attached to the stage's MLflow child run, or None outside the pipeline."""
-    try:
-        from pipeline.tracking import stage_run_info
-    except ImportError:  # the engine's tracking module is optional for running the stage on its own
-        return None
+    from pipeline.tracking import stage_run_info
+
     info = stage_run_info()
     if info is None:
         return None
