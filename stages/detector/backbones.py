@@ -1,0 +1,113 @@
+"""Backbones producing a stride-4 feature map for the CenterNet heads (the ``detector/backbone`` group).
+
+- ``resnet18``: CenterNet's plain ``res_18`` (msra_resnet): ResNet-18 basic blocks down to stride 32,
+  then three 4x4 stride-2 transposed convolutions of 256/256/256 channels back up to stride 4.
+  Written here (no torchvision), randomly initialised.
+- ``tiny``: the CPU default. Four stride-2 stages of one basic block each (stride 2..16), then a small
+  top-down path (nearest upsampling + 1x1 lateral skips, as in FPN) back to stride 4. The skips carry the
+  fine detail small wheels need that a deconvolution stack would have to relearn.
+
+All operations export to ONNX with a dynamic batch dimension.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def conv_bn_relu(c_in: int, c_out: int, stride: int = 1, kernel: int = 3) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, kernel, stride, kernel // 2, bias=False),
+                         nn.BatchNorm2d(c_out), nn.ReLU(inplace=True))
+
+
+class BasicBlock(nn.Module):
+    """ResNet's basic block: two 3x3 convolutions with a (projected when shapes change) identity shortcut."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int = 1):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(c_out)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(c_out)
+        self.relu = nn.ReLU(inplace=True)
+        self.downsample = None
+        if stride != 1 or c_in != c_out:
+            self.downsample = nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride, bias=False), nn.BatchNorm2d(c_out))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        identity = x if self.downsample is None else self.downsample(x)
+        out = self.relu(self.bn1(self.conv1(x)))
+        out = self.bn2(self.conv2(out))
+        return self.relu(out + identity)
+
+
+def resnet_layer(c_in: int, c_out: int, blocks: int, stride: int) -> nn.Sequential:
+    layers = [BasicBlock(c_in, c_out, stride)] + [BasicBlock(c_out, c_out) for _ in range(blocks - 1)]
+    return nn.Sequential(*layers)
+
+
+class ResNet18Deconv(nn.Module):
+    """ResNet-18 (stride 32) + three transposed-conv upsamplings (stride 4): CenterNet's ``res_18``."""
+
+    stride_multiple = 32  # input sizes must be divisible by this
+
+    def __init__(self, deconv_channels: tuple[int, ...] = (256, 256, 256)):
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(3, 64, 7, 2, 3, bias=False), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
+                                  nn.MaxPool2d(3, 2, 1))
+        self.layer1 = resnet_layer(64, 64, 2, 1)
+        self.layer2 = resnet_layer(64, 128, 2, 2)
+        self.layer3 = resnet_layer(128, 256, 2, 2)
+        self.layer4 = resnet_layer(256, 512, 2, 2)
+        deconvs, c_in = [], 512
+        for c_out in deconv_channels:
+            deconvs += [nn.ConvTranspose2d(c_in, c_out, 4, 2, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True)]
+            c_in = c_out
+        self.deconv = nn.Sequential(*deconvs)
+        self.out_channels = c_in
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.layer4(self.layer3(self.layer2(self.layer1(self.stem(x)))))
+        return self.deconv(x)
+
+
+class TinyBackbone(nn.Module):
+    """Stem (stride 2) + three basic-block stages (strides 4, 8, 16) + top-down path to stride 4."""
+
+    stride_multiple = 16
+
+    def __init__(self, channels: tuple[int, int, int, int] = (16, 32, 64, 128), out_channels: int = 64):
+        super().__init__()
+        c1, c2, c3, c4 = channels
+        self.stem = conv_bn_relu(3, c1, stride=2)
+        self.stage4 = BasicBlock(c1, c2, stride=2)
+        self.stage8 = BasicBlock(c2, c3, stride=2)
+        self.stage16 = BasicBlock(c3, c4, stride=2)
+        self.lateral16 = nn.Conv2d(c4, out_channels, 1)
+        self.lateral8 = nn.Conv2d(c3, out_channels, 1)
+        self.lateral4 = nn.Conv2d(c2, out_channels, 1)
+        self.smooth8 = conv_bn_relu(out_channels, out_channels)
+        self.smooth4 = conv_bn_relu(out_channels, out_channels)
+        self.out_channels = out_channels
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        f4 = self.stage4(self.stem(x))
+        f8 = self.stage8(f4)
+        f16 = self.stage16(f8)
+        p8 = self.smooth8(self.lateral8(f8) + F.interpolate(self.lateral16(f16), scale_factor=2.0, mode="nearest"))
+        return self.smooth4(self.lateral4(f4) + F.interpolate(p8, scale_factor=2.0, mode="nearest"))
+
+
+def build_backbone(cfg: dict) -> nn.Module:
+    """A backbone from its config (``detector.backbone``): ``{name: tiny|resnet18, ...}``."""
+    name = cfg["name"]
+    if name == "tiny":
+        return TinyBackbone(tuple(cfg["channels"]), int(cfg["out_channels"]))
+    if name == "resnet18":
+        return ResNet18Deconv(tuple(cfg["deconv_channels"]))
+    raise ValueError(f"detector.backbone.name: unknown backbone {name!r} (have 'tiny', 'resnet18')")

@@ -1,0 +1,44 @@
+"""Decoding CenterNet outputs into boxes: 3x3 max-pool peak extraction and top-K (``ctdet_decode``).
+
+Pure tensor operations with no data-dependent shapes or Python loops over the batch, so the decoder
+exports to ONNX together with the network (dynamic batch, fixed K).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from stages.detector.losses import gather_feat
+
+
+def nms_heatmap(heat: torch.Tensor, kernel: int = 3) -> torch.Tensor:
+    """CenterNet's ``_nms``: keep a heatmap value only where it is the maximum of its k x k neighbourhood."""
+    hmax = F.max_pool2d(heat, kernel, stride=1, padding=(kernel - 1) // 2)
+    return heat * (hmax == heat).to(heat.dtype)
+
+
+def topk(heat: torch.Tensor, k: int) -> tuple[torch.Tensor, ...]:
+    """The ``k`` highest peaks over all classes: (scores, flat cell indices, classes, ys, xs), each (B, k)."""
+    b, c, h, w = heat.shape
+    scores, flat = torch.topk(heat.reshape(b, -1), k)
+    classes = torch.div(flat, h * w, rounding_mode="floor")
+    cell = flat - classes * (h * w)
+    ys = torch.div(cell, w, rounding_mode="floor")
+    xs = cell - ys * w
+    return scores, cell, classes, ys, xs
+
+
+def ctdet_decode(heat: torch.Tensor, wh: torch.Tensor, reg: torch.Tensor, k: int = 100,
+                 down_ratio: int = 4) -> torch.Tensor:
+    """(B, C, H, W) heatmap probabilities, (B, 2, H, W) sizes and offsets -> (B, k, 6) detections
+    ``x1, y1, x2, y2, score, class`` in network-input pixels, best first."""
+    k = min(k, heat.shape[1] * heat.shape[2] * heat.shape[3])
+    scores, cell, classes, ys, xs = topk(nms_heatmap(heat), k)
+    offset = gather_feat(reg, cell)
+    size = gather_feat(wh, cell)
+    cx = xs.to(heat.dtype) + offset[..., 0]
+    cy = ys.to(heat.dtype) + offset[..., 1]
+    half_w, half_h = size[..., 0] / 2, size[..., 1] / 2
+    boxes = torch.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], dim=-1) * down_ratio
+    return torch.cat([boxes, scores.unsqueeze(-1), classes.to(heat.dtype).unsqueeze(-1)], dim=-1)

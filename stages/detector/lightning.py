@@ -1,0 +1,135 @@
+"""Lightning wrappers: the CenterNet training module and the data module over a WORD dataset's splits."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from stages.detector.dataset import CenterNetDataset, max_objects_of
+from stages.detector.decode import ctdet_decode
+from stages.detector.letterbox import letterbox_for
+from stages.detector.losses import centernet_loss
+from stages.detector.metrics import coco_average_precision
+from stages.detector.model import CLASS_NAMES, DOWN_RATIO, build_centernet
+from stages.detector.predict import detections_to_record
+from stages.word_format import Record
+
+
+class NonFiniteLossError(FloatingPointError):
+    pass
+
+
+def check_finite_loss(total: torch.Tensor, parts: dict[str, torch.Tensor], epoch: int, step: int) -> None:
+    """Stop training with a clear message as soon as the loss is NaN or infinite."""
+    if not torch.isfinite(total):
+        detail = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
+        raise NonFiniteLossError(f"detector: non-finite training loss {float(total)} at epoch {epoch}, step {step} "
+                                 f"({detail}); lower detector.optimizer.lr or check the input boxes")
+
+
+class CenterNetModule(L.LightningModule):
+    """Trains a CenterNet; at the end of each validation epoch computes COCO AP per class on the val set
+    (``val/ap50.<class>``, ``val/ap.<class>`` in percent, and their class mean ``val/ap50`` to monitor)."""
+
+    def __init__(self, model_cfg: dict, loss: dict, optimizer: dict, score_threshold: float):
+        super().__init__()
+        self.save_hyperparameters()
+        self.net = build_centernet(model_cfg)
+        self.k = int(model_cfg["max_detections"])
+        self.input_size = (int(model_cfg["input_width"]), int(model_cfg["input_height"]))
+        self.loss_weights, self.optim_cfg, self.score_threshold = loss, optimizer, score_threshold
+        self._val_detections: list[torch.Tensor] = []
+        self._val_indices: list[torch.Tensor] = []
+
+    def forward(self, images: torch.Tensor):
+        return self.net(images)
+
+    def _loss(self, batch):
+        return centernet_loss(self.net(batch["image"]), batch, self.loss_weights["hm_weight"],
+                              self.loss_weights["wh_weight"], self.loss_weights["off_weight"])
+
+    def training_step(self, batch, batch_idx):
+        total, parts = self._loss(batch)
+        check_finite_loss(total, parts, self.current_epoch, self.global_step)
+        bs = batch["image"].shape[0]
+        self.log("train/loss", total, prog_bar=True, on_step=True, on_epoch=True, batch_size=bs)
+        self.log_dict({f"train/{k}": v for k, v in parts.items()}, batch_size=bs)
+        return total
+
+    def validation_step(self, batch, batch_idx):
+        outputs = self.net(batch["image"])
+        total, _ = centernet_loss(outputs, batch, **self.loss_weights)
+        self.log("val/loss", total, prog_bar=True, batch_size=batch["image"].shape[0], sync_dist=True)
+        self._val_detections.append(ctdet_decode(*outputs, k=self.k, down_ratio=DOWN_RATIO))
+        self._val_indices.append(batch["index"])
+
+    def on_validation_epoch_end(self):
+        if not self._val_detections:
+            return
+        detections, indices = torch.cat(self._val_detections), torch.cat(self._val_indices)
+        self._val_detections, self._val_indices = [], []
+        # Under DDP each rank saw a share of the val set (padded with repeats): gather all, keep each once.
+        detections = self.all_gather(detections).reshape(-1, *detections.shape[1:])
+        indices = self.all_gather(indices).reshape(-1)
+        records: list[Record] = self.trainer.val_dataloaders.dataset.records
+        first = {int(i): n for n, i in reversed(list(enumerate(indices.tolist())))}
+        order = sorted(first)
+        dets = detections.cpu().numpy()
+        preds = [detections_to_record(dets[first[i]], records[i],
+                                      letterbox_for(records[i].width, records[i].height, *self.input_size),
+                                      self.score_threshold) for i in order]
+        ap = coco_average_precision(preds, [records[i] for i in order], CLASS_NAMES)
+        values = {f"val/{m}.{c}": v[m] for c, v in ap.items() for m in ("ap50", "ap")}
+        values = {k: (0.0 if math.isnan(v) else v) for k, v in values.items()}
+        values["val/ap50"] = float(np.mean([values[f"val/ap50.{c}"] for c in CLASS_NAMES]))
+        self.log_dict(values, prog_bar=False)
+        self.log("val/ap50", values["val/ap50"], prog_bar=True)
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.optim_cfg["lr"], weight_decay=self.optim_cfg["weight_decay"])
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        warmup = max(1, int(total * self.optim_cfg["warmup_fraction"]))
+
+        def warmup_cosine(step: int) -> float:
+            # Linear warm-up (Adam on randomly initialised BatchNorm nets is fragile in its first steps),
+            # then cosine decay to zero at the last step.
+            if step < warmup:
+                return (step + 1) / warmup
+            return 0.5 * (1 + math.cos(math.pi * min(1.0, (step - warmup) / max(1, total - warmup))))
+
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, warmup_cosine)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+class DetectorDataModule(L.LightningDataModule):
+    """Train (augmented, shuffled) and val (plain) loaders over WORD records of one dataset root."""
+
+    def __init__(self, root: str | Path, train: list[Record], val: list[Record], input_width: int,
+                 input_height: int, augment: dict, batch_size: int, num_workers: int, min_overlap: float):
+        super().__init__()
+        if not train:
+            raise ValueError("detector: the dataset's train split is empty")
+        if not val:
+            raise ValueError("detector: the dataset's val split is empty (needed to pick the best checkpoint)")
+        max_objects = max_objects_of(train + val)
+        size = dict(input_width=input_width, input_height=input_height, max_objects=max_objects,
+                    min_overlap=min_overlap)
+        self.train_set = CenterNetDataset(root, train, augment=augment, **size)
+        self.val_set = CenterNetDataset(root, val, augment=None, **size)
+        self.batch_size, self.num_workers = batch_size, num_workers
+
+    def _loader(self, dataset: CenterNetDataset, train: bool) -> DataLoader:
+        return DataLoader(dataset, batch_size=self.batch_size, shuffle=train, num_workers=self.num_workers,
+                          drop_last=train and len(dataset) > self.batch_size,  # no 1-image BatchNorm batch
+                          persistent_workers=self.num_workers > 0)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train_set, train=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.val_set, train=False)

@@ -1,0 +1,87 @@
+"""The CenterNet network (backbone + heads), its decoding wrapper for export, and how a trained model is
+saved and loaded: ``model.pt`` (a state_dict) beside ``model.json`` (everything needed to rebuild it and
+to preprocess its input)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from stages.detector.backbones import build_backbone
+from stages.detector.decode import ctdet_decode
+from stages.detector.heads import CenterNetHeads
+from stages.detector.letterbox import MEAN, STD
+
+DOWN_RATIO = 4  # CenterNet's output stride
+CLASS_NAMES = ("vehicle", "wheel")  # index = WORD class_id
+WEIGHTS_FILE = "model.pt"
+CONFIG_FILE = "model.json"
+
+
+class CenterNet(nn.Module):
+    """Image batch (B, 3, H, W) -> (heatmap probabilities (B, C, H/4, W/4), sizes (B, 2, ..), offsets (B, 2, ..))."""
+
+    def __init__(self, backbone: nn.Module, head_conv: int, num_classes: int = len(CLASS_NAMES)):
+        super().__init__()
+        self.backbone = backbone
+        self.heads = CenterNetHeads(backbone.out_channels, head_conv, num_classes)
+
+    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.heads(self.backbone(images))
+
+
+class CenterNetWithDecode(nn.Module):
+    """The network followed by peak extraction and top-K: images -> (B, K, 6) detections in input pixels
+    (x1, y1, x2, y2, score, class). The form to export when the runtime should do no post-processing."""
+
+    def __init__(self, net: CenterNet, k: int = 100):
+        super().__init__()
+        self.net, self.k = net, k
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return ctdet_decode(*self.net(images), k=self.k, down_ratio=DOWN_RATIO)
+
+
+def model_config(detector_cfg: dict) -> dict:
+    """The JSON-able description of a model built from the stage config ``detector``."""
+    backbone = dict(detector_cfg["backbone"])
+    return {
+        "backbone": backbone,
+        "head_conv": int(backbone["head_conv"]),
+        "class_names": list(CLASS_NAMES),
+        "input_width": int(detector_cfg["input_width"]),
+        "input_height": int(detector_cfg["input_height"]),
+        "down_ratio": DOWN_RATIO,
+        "max_detections": int(detector_cfg["max_detections"]),
+        "score_threshold": float(detector_cfg["score_threshold"]),
+        "mean": MEAN.tolist(),
+        "std": STD.tolist(),
+    }
+
+
+def build_centernet(config: dict) -> CenterNet:
+    """A CenterNet from ``model_config(...)``; checks the input size fits the backbone's strides."""
+    backbone = build_backbone(config["backbone"])
+    multiple = backbone.stride_multiple
+    for key in ("input_width", "input_height"):
+        if int(config[key]) % multiple:
+            raise ValueError(f"detector.{key}={config[key]} must be divisible by {multiple} "
+                             f"for backbone {config['backbone']['name']!r}")
+    return CenterNet(backbone, int(config["head_conv"]), len(config["class_names"]))
+
+
+def save_detector(out_dir: Path, net: CenterNet, config: dict) -> None:
+    torch.save(net.state_dict(), Path(out_dir) / WEIGHTS_FILE)
+    (Path(out_dir) / CONFIG_FILE).write_text(json.dumps(config, indent=1))
+
+
+def load_detector(stage_dir: str | Path) -> tuple[CenterNet, dict]:
+    """The trained network (eval mode) and its config from a detector stage's output directory."""
+    stage_dir = Path(stage_dir)
+    config = json.loads((stage_dir / CONFIG_FILE).read_text())
+    net = build_centernet(config)
+    net.load_state_dict(torch.load(stage_dir / WEIGHTS_FILE, map_location="cpu", weights_only=True))
+    return net.eval(), config

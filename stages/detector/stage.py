@@ -1,0 +1,112 @@
+"""The ``detector`` DAG node: train CenterNet on the dataset's train split, keep the best epoch by val AP@0.5,
+report COCO AP per class on val and test, and write WORD-format predictions for both.
+
+Outputs (paths relative to the stage directory):
+  model.pt, model.json            best weights (state_dict) and what rebuilds/preprocesses the model
+  predictions_{val,test}.jsonl    detections in WORD format, original image coordinates, real scores
+  checkpoints/                    Lightning checkpoints (best.ckpt, last.ckpt)
+  logs/metrics.csv                training curves (also in the stage's MLflow run when tracked)
+  artifacts/detections_test.png   detections drawn on test images; artifacts/curves.png
+  metrics.json                    the metrics returned to the engine
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from stages.word_format import open_dataset, write_records
+
+
+def _loggers(out_dir: Path) -> list:
+    from lightning.pytorch.loggers import CSVLogger, MLFlowLogger
+
+    from pipeline.tracking import stage_run_info
+
+    loggers = [CSVLogger(out_dir, name="logs", version="")]
+    info = stage_run_info()
+    if info is not None:
+        uri, run_id = info
+        loggers.append(MLFlowLogger(tracking_uri=uri, run_id=run_id))
+    return loggers
+
+
+def _threads(trainer_cfg: dict) -> int:
+    """Intra-op threads: the trainer config's ``threads`` if set, else every core this process may use."""
+    return int(trainer_cfg.get("threads") or len(os.sched_getaffinity(0)))
+
+
+def _load_best_weights(net, checkpoint_path: str) -> None:
+    import torch
+
+    state = torch.load(checkpoint_path, map_location="cpu", weights_only=True)["state_dict"]
+    net.load_state_dict({k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")})
+
+
+def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
+    import lightning as L
+    import torch
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    from stages.detector.curves import plot_curves
+    from stages.detector.lightning import CenterNetModule, DetectorDataModule
+    from stages.detector.metrics import coco_average_precision
+    from stages.detector.model import CLASS_NAMES, build_centernet, model_config, save_detector
+    from stages.detector.predict import predict_records
+    from stages.detector.render import write_detection_grid
+
+    out_dir = Path(out_dir)
+    det = OmegaConf.to_container(cfg.detector, resolve=True)
+    trainer_cfg = OmegaConf.to_container(cfg.trainer, resolve=True) if "trainer" in cfg else {}
+    L.seed_everything(int(cfg.seed), workers=True)
+    torch.set_num_threads(_threads(trainer_cfg))
+
+    dataset = open_dataset(inputs["data"])
+    splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
+    mcfg = model_config(det)
+    module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"])
+    data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
+                              det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
+    checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="best", monitor="val/ap50", mode="max",
+                                 save_last=True, auto_insert_metric_name=False)
+    trainer = L.Trainer(
+        max_epochs=det["epochs"], limit_train_batches=det["limit_train_batches"],
+        limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
+        accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
+        strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
+        precision=trainer_cfg.get("precision", "32-true"), logger=_loggers(out_dir), callbacks=[checkpoint],
+        default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
+        num_sanity_val_steps=0)
+    started = time.perf_counter()
+    trainer.fit(module, datamodule=data)
+    train_seconds = time.perf_counter() - started
+
+    net = build_centernet(mcfg)
+    _load_best_weights(net, checkpoint.best_model_path or checkpoint.last_model_path)
+    save_detector(out_dir, net, mcfg)
+
+    metrics = {"detector.train_seconds": train_seconds, "detector.epochs": float(trainer.current_epoch)}
+    predictions = {}
+    for split in ("val", "test"):
+        preds = predict_records(net, dataset.root, splits[split], mcfg["input_width"], mcfg["input_height"],
+                                mcfg["max_detections"], mcfg["score_threshold"], det["batch_size"])
+        write_records(out_dir / f"predictions_{split}.jsonl", preds)
+        predictions[split] = preds
+        for name, ap in coco_average_precision(preds, splits[split], CLASS_NAMES).items():
+            for kind in ("ap50", "ap"):
+                if not math.isnan(ap[kind]):
+                    metrics[f"detector.{split}.{kind}.{name}"] = ap[kind]
+
+    artifacts = out_dir / "artifacts"
+    shown = slice(0, det["render_images"])
+    write_detection_grid(artifacts / "detections_test.png", dataset.root, predictions["test"][shown],
+                         splits["test"][shown], min_score=det["render_min_score"])
+    if (out_dir / "logs" / "metrics.csv").is_file():
+        plot_curves(out_dir / "logs" / "metrics.csv", artifacts / "curves.png")
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    return metrics

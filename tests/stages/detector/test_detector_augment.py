@@ -1,0 +1,51 @@
+import numpy as np
+
+from stages.detector.augment import flip_image, flip_record, photometric_jitter
+from stages.word_format import Record, load_image, parse_record
+
+
+def record() -> Record:
+    obj = {"image": "images/left/000001.png", "frame_id": 1, "camera": "left", "width": 100, "height": 50,
+           "boxes": [[10, 5, 60, 40, 1.0, 0, 7], [12, 30, 22, 40, 1.0, 1, 3], [45, 31, 57, 41, 1.0, 1, 4],
+                     [80, 20, 90, 30, 1.0, 1, 9]],
+           "relations": [[7, 3, "rear"], [7, 4, "front"]], "wheel_pairs": [[3, 4]], "scene": "parking"}
+    return parse_record(obj, "labels.jsonl", 1)
+
+
+def test_flip_mirrors_boxes_and_keeps_relations_roles_couples():
+    rec = record()
+    flipped = flip_record(rec)
+    assert np.allclose(flipped.xyxy[0], [40, 5, 90, 40])
+    assert np.allclose(flipped.xyxy[:, 0], 100 - rec.xyxy[:, 2]) and np.allclose(flipped.xyxy[:, 2], 100 - rec.xyxy[:, 0])
+    assert np.array_equal(flipped.xyxy[:, [1, 3]], rec.xyxy[:, [1, 3]])
+    assert np.array_equal(flipped.boxes[:, 4:], rec.boxes[:, 4:])   # scores, classes, ids untouched
+    # the rear wheel stays the rear one even though it is now on the right of the image
+    assert flipped.relations == [(7, 3, "rear"), (7, 4, "front")] and flipped.wheel_pairs == [(3, 4)]
+    assert flipped.owner_of() == rec.owner_of() and flipped.camera == rec.camera
+    # still a valid WORD record, and flipping twice is the identity; the input is not modified
+    parse_record(flipped.to_json(), "flipped", 1)
+    assert np.allclose(flip_record(flipped).boxes, rec.boxes) and rec.xyxy[0, 0] == 10
+
+
+def test_flipped_image_and_record_agree(tmp_path):
+    import cv2
+
+    rec = record()
+    image = np.zeros((50, 100, 3), dtype=np.uint8)
+    x1, y1, x2, y2 = rec.xyxy[0].astype(int)
+    image[y1:y2, x1:x2] = 255
+    (tmp_path / "images/left").mkdir(parents=True)
+    cv2.imwrite(str(tmp_path / rec.image), image)
+    flipped_image, flipped = flip_image(load_image(tmp_path, rec)), flip_record(rec)
+    fx1, fy1, fx2, fy2 = flipped.xyxy[0].astype(int)
+    assert flipped_image[fy1:fy2, fx1:fx2].min() == 255
+    assert flipped_image.sum() == image.sum()
+
+
+def test_photometric_jitter_is_seeded_and_keeps_geometry():
+    image = np.random.default_rng(0).integers(0, 255, size=(20, 30, 3), dtype=np.uint8)
+    a = photometric_jitter(image, np.random.default_rng(1), 0.3, 0.3, 0.3)
+    b = photometric_jitter(image, np.random.default_rng(1), 0.3, 0.3, 0.3)
+    assert a.shape == image.shape and a.dtype == np.uint8 and np.array_equal(a, b)
+    assert not np.array_equal(a, image)
+    assert np.array_equal(photometric_jitter(image, np.random.default_rng(2), 0.0, 0.0, 0.0), image)

@@ -1,0 +1,40 @@
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from stages.detector.metrics import coco_average_precision
+from stages.word_format import Record
+
+
+def rec(name: str, boxes: list[list[float]]) -> Record:
+    return Record(image=name, frame_id=0, camera="front", width=100, height=100,
+                  boxes=np.array(boxes, dtype=np.float64).reshape(-1, 7), relations=[], wheel_pairs=[])
+
+
+def test_perfect_detections_score_100():
+    gt = [rec("a", [[0, 0, 50, 50, 1, 0, 0], [60, 60, 70, 70, 1, 1, 1]]), rec("b", [[10, 10, 30, 30, 1, 1, 0]])]
+    ap = coco_average_precision(gt, gt)
+    assert set(ap) == {"vehicle", "wheel"}
+    for per_class in ap.values():
+        assert per_class == {"ap50": pytest.approx(100.0), "ap": pytest.approx(100.0)}
+
+
+def test_iou_062_counts_at_three_of_ten_thresholds():
+    gt = [rec("a", [[0, 0, 10, 10, 1, 1, 0]])]
+    pred = [rec("a", [[0, 0, 10, 6.2, 0.9, 1, 0]])]  # IoU 0.62 >= 0.50, 0.55, 0.60 only
+    ap = coco_average_precision(pred, gt)["wheel"]
+    assert ap["ap50"] == pytest.approx(100.0) and ap["ap"] == pytest.approx(30.0)
+
+
+def test_ranking_matters_and_missing_classes():
+    gt = [rec("a", [[0, 0, 10, 10, 1, 1, 0]])]
+    # a confident false positive ranked above the true positive halves the precision at full recall
+    pred = [rec("a", [[50, 50, 60, 60, 0.9, 1, 0], [0, 0, 10, 10, 0.5, 1, 1]])]
+    assert coco_average_precision(pred, gt)["wheel"]["ap50"] == pytest.approx(50.0, abs=1.0)
+    assert math.isnan(coco_average_precision(pred, gt)["vehicle"]["ap"])  # no vehicle in the ground truth
+    empty = [dataclasses.replace(gt[0], boxes=np.zeros((0, 7)))]
+    assert coco_average_precision(empty, gt)["wheel"]["ap50"] == 0.0
+    with pytest.raises(ValueError, match="ground truth"):
+        coco_average_precision([rec("b", [])], gt)

@@ -1,0 +1,50 @@
+import pytest
+import torch
+
+from stages.detector.heads import HEATMAP_EPS
+from stages.detector.model import CenterNetWithDecode, build_centernet, load_detector, save_detector
+
+TINY = {"name": "tiny", "channels": [8, 8, 16, 16], "out_channels": 16, "head_conv": 16}
+RESNET18 = {"name": "resnet18", "deconv_channels": [256, 256, 256], "head_conv": 64}
+
+
+def config(backbone: dict, width: int = 64, height: int = 32) -> dict:
+    return {"backbone": backbone, "head_conv": backbone["head_conv"], "class_names": ["vehicle", "wheel"],
+            "input_width": width, "input_height": height, "down_ratio": 4, "max_detections": 7,
+            "score_threshold": 0.1}
+
+
+@pytest.mark.parametrize("backbone", [TINY, RESNET18], ids=["tiny", "resnet18"])
+def test_output_shapes_stride_4(backbone):
+    net = build_centernet(config(backbone)).eval()
+    with torch.no_grad():
+        heat, wh, reg = net(torch.randn(2, 3, 32, 64))
+    assert heat.shape == (2, 2, 8, 16) and wh.shape == (2, 2, 8, 16) and reg.shape == (2, 2, 8, 16)
+    assert heat.min() >= HEATMAP_EPS and heat.max() <= 1 - HEATMAP_EPS
+    # heatmap bias -2.19: an untrained network starts near the prior probability 0.1
+    assert heat.mean().item() == pytest.approx(0.1, abs=0.05)
+
+
+def test_resnet18_has_resnet18_size():
+    net = build_centernet(config(RESNET18))
+    backbone_params = sum(p.numel() for n, p in net.backbone.named_parameters() if not n.startswith("deconv"))
+    assert backbone_params == pytest.approx(11.18e6, rel=0.01)  # ResNet-18 without its fc layer
+
+
+def test_input_size_must_fit_the_strides():
+    with pytest.raises(ValueError, match="divisible by 32"):
+        build_centernet(config(RESNET18, width=80))
+    with pytest.raises(ValueError, match="unknown backbone"):
+        build_centernet(config({"name": "vgg", "head_conv": 8}))
+
+
+def test_save_load_round_trip_and_decoding_wrapper(tmp_path):
+    net = build_centernet(config(TINY)).eval()
+    save_detector(tmp_path, net, config(TINY))
+    loaded, cfg = load_detector(tmp_path)
+    x = torch.randn(3, 3, 32, 64)
+    with torch.no_grad():
+        for a, b in zip(net(x), loaded(x), strict=True):
+            assert torch.equal(a, b)
+        detections = CenterNetWithDecode(loaded, k=cfg["max_detections"])(x)
+    assert detections.shape == (3, 7, 6)
