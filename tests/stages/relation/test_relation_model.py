@@ -1,0 +1,130 @@
+"""RelationNet: shapes per backbone, padding invariance, permutation equivariance, attention, decoding."""
+
+import numpy as np
+import pytest
+import relation_data as rd
+import torch
+
+from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
+from stages.relation.inputs import InputConfig, node_tensor
+from stages.relation.model import ModelConfig, RelationNet, count_parameters
+
+torch.set_num_threads(1)
+
+
+def _net(**kw) -> RelationNet:
+    torch.manual_seed(0)
+    cfg = dict(backbone="conv_fc", input_size=16, expansion=1, hidden=32, embed_dim=16, gat_hidden=16)
+    cfg.update(kw)
+    return RelationNet(ModelConfig(**cfg)).eval()
+
+
+def _inputs(max_objects: int, size: int = 16, n_images: int = 2):
+    split = rd.split(rd.records(n_images, seed=1, max_cars=3), InputConfig(input_size=size, max_objects=max_objects))
+    crops = torch.zeros((n_images, max_objects, 3, size, size), dtype=torch.uint8)
+    for i in range(n_images):
+        a, b = split.offsets[i], split.offsets[i + 1]
+        crops[i, : b - a] = torch.from_numpy(split.crops[a:b])
+    x = node_tensor(crops, torch.from_numpy(split.coords))
+    return x, torch.from_numpy(split.adj), torch.from_numpy(split.cand).float(), split
+
+
+@pytest.mark.parametrize("backbone,size,expansion", [("conv_fc", 28, 1), ("conv_fc", 56, 1), ("conv_fc", 56, 4),
+                                                     ("resnet18", 56, 1)])
+def test_output_shapes_per_backbone(backbone, size, expansion):
+    net = _net(backbone=backbone, input_size=size, expansion=expansion, base_width=8)
+    x, adj, cand, _ = _inputs(12, size=size)
+    owner, couple, front = net(x, adj, cand)
+    assert owner.shape == couple.shape == (2, 12, 12) and front.shape == (2, 12)
+    assert torch.all(owner.abs() <= 1 + 1e-5) and torch.all((front >= 0) & (front <= 1))
+    assert torch.all(owner[cand == 0] == 0)
+
+
+def test_resnet18_at_full_width_is_resnet18_sized():
+    net = RelationNet(ModelConfig(backbone="resnet18", input_size=56))
+    assert 11.0e6 < count_parameters(net.backbone) < 11.5e6  # torchvision's resnet18 has 11.7M with its 1000-way fc
+
+
+def test_padding_never_changes_real_outputs():
+    net = _net()
+    x, adj, cand, split = _inputs(12)
+    n_big = 20
+    pad = n_big - 12
+    x_big = torch.nn.functional.pad(x, (0, 0, 0, 0, 0, 0, 0, pad))
+    adj_big = torch.nn.functional.pad(adj, (0, pad, 0, pad))
+    cand_big = torch.nn.functional.pad(cand, (0, pad, 0, pad))
+    with torch.no_grad():
+        small, big = net(x, adj, cand), net(x_big, adj_big, cand_big)
+    for i, k in enumerate(split.valid.sum(1)):
+        assert torch.allclose(small[0][i, :k, :k], big[0][i, :k, :k], atol=1e-6)
+        assert torch.allclose(small[1][i, :k, :k], big[1][i, :k, :k], atol=1e-6)
+        assert torch.allclose(small[2][i, :k], big[2][i, :k], atol=1e-6)
+
+
+def test_permuting_objects_permutes_outputs():
+    net = _net()
+    x, adj, cand, split = _inputs(12, n_images=1)
+    k = int(split.valid[0].sum())
+    perm = torch.cat([torch.randperm(k, generator=torch.Generator().manual_seed(3)), torch.arange(k, 12)])
+    with torch.no_grad():
+        out = net(x, adj, cand)
+        out_p = net(x[:, perm], adj[:, perm][:, :, perm], cand[:, perm][:, :, perm])
+    assert torch.allclose(out_p[0], out[0][:, perm][:, :, perm], atol=1e-5)
+    assert torch.allclose(out_p[1], out[1][:, perm][:, :, perm], atol=1e-5)
+    assert torch.allclose(out_p[2], out[2][:, perm], atol=1e-6)
+
+
+def test_attention_sums_to_one_over_each_nodes_neighbours():
+    net = _net()
+    x, adj, cand, split = _inputs(12)
+    with torch.no_grad():
+        _, scale = net.edge_weights(net.embed(x), adj)
+    neighbours = adj > 0
+    valid = torch.from_numpy(split.valid)
+    assert torch.allclose(scale.sum(-1)[valid], torch.ones(int(valid.sum())), atol=1e-6)
+    assert torch.all(scale[~neighbours] == 0)          # nothing leaks to non-neighbours or padding
+    assert torch.all(scale.sum(-1)[~valid] == 0)        # padded rows are empty
+    assert scale[neighbours].std() > 0                 # re-weighting, not a constant
+
+
+def test_without_gat_the_edge_weights_are_the_row_normalised_priors():
+    net = _net(gat=False)
+    x, adj, _, _ = _inputs(12)
+    with torch.no_grad():
+        weights, scale = net.edge_weights(net.embed(x), adj)
+    expected = adj / adj.sum(-1, keepdim=True).clamp_min(1e-12)
+    assert torch.allclose(weights, expected) and torch.equal(scale, (adj > 0).float())
+
+
+def test_one_owner_decode_keeps_each_wheels_best_vehicle_above_threshold():
+    classes = torch.tensor([[0, 0, 1, 1]])
+    cand = torch.ones(1, 4, 4)
+    scores = torch.zeros(1, 4, 4)
+    scores[0, 2, 0], scores[0, 2, 1] = 0.9, 0.7   # wheel 2: both vehicles above 0.5
+    scores[0, 3, 0], scores[0, 3, 1] = 0.4, 0.3   # wheel 3: none above 0.5
+    plain = decode_owners(scores, classes, cand, 0.5, one_owner=False)
+    one = decode_owners(scores, classes, cand, 0.5, one_owner=True)
+    assert plain[0, 2].tolist() == [True, True, False, False] and not plain[0, 3].any()
+    assert one[0, 2].tolist() == [True, False, False, False] and not one[0, 3].any()
+    cand[0, 2, 0] = 0                              # a non-candidate pair is never predicted
+    assert decode_owners(scores, classes, cand, 0.5, True)[0, 2].tolist() == [False, True, False, False]
+
+
+def test_couples_are_mutual_best_wheels_and_metrics_count_them():
+    classes = torch.tensor([[0, 1, 1, 1]])
+    cand = torch.ones(1, 4, 4)
+    s = torch.zeros(1, 4, 4)
+    s[0, 1, 2] = s[0, 2, 1] = 0.9
+    s[0, 2, 3] = s[0, 3, 2] = 0.8                 # wheel 3's best is 2, but 2 prefers 1
+    couples = decode_couples(s, classes, cand, 0.5)
+    assert couples[0].nonzero().tolist() == [[1, 2], [2, 1]]
+    owner_t = torch.zeros(1, 4, 4, dtype=torch.uint8)
+    owner_t[0, 0, 1] = owner_t[0, 1, 0] = owner_t[0, 0, 2] = owner_t[0, 2, 0] = 1
+    pred = torch.zeros(1, 4, 4, dtype=torch.bool)
+    pred[0, 1, 0] = True                           # wheel 1 right, wheel 2 missed, wheel 3 (no owner) right
+    couple_t = torch.zeros(1, 4, 4, dtype=torch.uint8)
+    couple_t[0, 1, 2] = couple_t[0, 2, 1] = 1
+    m = metrics_from_counts({k: float(v) for k, v in relation_counts(pred, owner_t, couples, couple_t, classes).items()})
+    assert m["wheel_acc"] == pytest.approx(200 / 3) and m["image_acc"] == 0.0
+    assert m["pair_precision"] == 100.0 and m["pair_recall"] == 50.0 and m["couple_f1"] == 100.0
+    assert np.isclose(m["pair_f1"], 200 / 3)
