@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 from stages.evaluate.baselines import baseline_params
@@ -52,6 +53,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         if inputs_by_image is None:
             ctx.notes.append(f"`{boxes}` boxes skipped: their upstream stage is not an input of evaluate")
             continue
+        for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
+            inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],
+                                                          wheel_pairs=[]))
         results[boxes] = {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}

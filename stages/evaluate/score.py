@@ -1,0 +1,90 @@
+"""Score a WORD-format predictions file against a whole WORD-format dataset (DESIGN §7 definitions).
+
+    python -m stages.evaluate.score --gt ROOT --pred FILE [--json OUT] [--min-box-px 8] [--seed 42]
+
+ROOT is a dataset directory (``labels.jsonl`` + images) or a data stage's output (``dataset.json``).
+All its images are scored, split into easy / hard / mixed by ``word_format.difficulty_subsets``. An image
+missing from the predictions counts as predicted with no relations; a prediction for an image the
+dataset does not have is an error. Bad input exits with code 2 and a file:line:field message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from stages.evaluate.metrics import evaluated_wheel_ids, score_records
+from stages.evaluate.report import render_markdown
+from stages.word_format import LABELS_FILE, DatasetError, Record, difficulty_subsets, read_records
+
+
+class ScoreError(ValueError):
+    """A usage problem that is not located in a file line."""
+
+
+def load_ground_truth(root: Path) -> tuple[Path, list[Record]]:
+    """The dataset's root and records, from a dataset folder or a data stage output folder."""
+    if (root / "dataset.json").is_file():
+        try:
+            index = json.loads((root / "dataset.json").read_text())
+        except json.JSONDecodeError as exc:
+            raise DatasetError(root / "dataset.json", exc.lineno, "<json>", f"malformed JSON: {exc.msg}") from None
+        data_root = (root / index["root"]).resolve()
+        return data_root, read_records(data_root / index.get("labels", LABELS_FILE), root=data_root)
+    if not (root / LABELS_FILE).is_file():
+        raise ScoreError(f"{root}: neither {LABELS_FILE} nor dataset.json found: not a WORD-style dataset")
+    return root, read_records(root / LABELS_FILE, root=root)
+
+
+def load_predictions(path: Path, root: Path, known: set[str]) -> dict[str, Record]:
+    """Validated predictions by image; every image must exist in the ground truth."""
+    if not path.is_file():
+        raise ScoreError(f"{path}: predictions file not found")
+    records = read_records(path, root=root, allow_empty=True)
+    for rec in records:
+        if rec.image not in known:
+            file, line = rec.source or (str(path), None)
+            raise DatasetError(file, line, "image", f"{rec.image!r} is not an image of the ground-truth dataset")
+    return {r.image: r for r in records}
+
+
+def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, seed: int) -> dict:
+    root, gts = load_ground_truth(gt_root)
+    preds = load_predictions(pred_path, root, {r.image for r in gts})
+    by_image = {r.image: r for r in gts}
+    subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed).items()}
+    results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
+    sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
+             for s, recs in subsets.items()}
+    missing = len(set(by_image) - set(preds))
+    return {"results": results, "sizes": sizes, "missing_images": missing, "predictions": str(pred_path),
+            "ground_truth": str(gt_root), "min_box_px": min_box_px, "match_iou": match_iou}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="deepword score", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--gt", required=True, type=Path, help="WORD-style dataset root (or data stage output)")
+    parser.add_argument("--pred", required=True, type=Path, help="predictions in WORD format (labels.jsonl style)")
+    parser.add_argument("--json", type=Path, help="also write the results as JSON here")
+    parser.add_argument("--min-box-px", type=float, default=8.0, help="evaluated wheels' minimum shorter side")
+    parser.add_argument("--match-iou", type=float, default=0.5, help="IoU for matching predicted to true boxes")
+    parser.add_argument("--seed", type=int, default=42, help="seed of the mixed subset's sample")
+    parser.add_argument("--name", default="submitted", help="row name in the printed table")
+    args = parser.parse_args(argv)
+    try:
+        out = score(args.gt, args.pred, args.min_box_px, args.match_iou, args.seed)
+    except (DatasetError, ScoreError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    notes = [f"{out['missing_images']} ground-truth images had no prediction (scored as no relations)"]
+    print(render_markdown({"predictions": {args.name: out["results"]}}, out["sizes"], notes,
+                          f"Scores of {args.pred} against {args.gt}"))
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

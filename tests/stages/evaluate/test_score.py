@@ -1,0 +1,78 @@
+"""The scoring CLI on a tiny dataset: perfect and partial predictions, missing and unknown images,
+malformed predictions files."""
+
+import json
+
+import pytest
+from tiny_word import build
+
+from stages.evaluate.score import main
+from stages.word_format import read_records, write_records
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return build(tmp_path_factory.mktemp("score") / "data", n_train=10, n_test=10, seed=3)
+
+
+def test_ground_truth_as_predictions_scores_100(data, tmp_path, capsys):
+    out = tmp_path / "scores.json"
+    assert main(["--gt", str(data), "--pred", str(data / "labels.jsonl"), "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| wheel_acc (%) | easy | hard | mixed |" in printed and "*71.83*" in printed
+    res = json.loads(out.read_text())
+    assert res["missing_images"] == 0
+    for subset in ("easy", "hard", "mixed"):
+        assert all(v == 100.0 for v in res["results"][subset].values())
+    assert res["sizes"]["easy"]["images"] + res["sizes"]["hard"]["images"] == 20
+
+
+def test_missing_images_count_as_no_relations(data, tmp_path):
+    recs = read_records(data / "labels.jsonl")
+    write_records(tmp_path / "pred.jsonl", recs[:5])
+    out = tmp_path / "scores.json"
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl"), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["missing_images"] == 15
+    assert res["results"]["mixed"]["pair_recall"] < 100
+
+
+def test_unknown_image_is_an_error(data, tmp_path, capsys):
+    lines = (data / "labels.jsonl").read_text().splitlines()
+    obj = json.loads(lines[0])
+    obj["image"] = "images/left/99999.png"
+    (tmp_path / "pred.jsonl").write_text(lines[1] + "\n" + json.dumps(obj) + "\n")
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl")]) == 2
+    err = capsys.readouterr().err
+    assert "pred.jsonl:2" in err and "'image'" in err and "not an image of the ground-truth dataset" in err
+
+
+@pytest.mark.parametrize("mutate, where", [
+    (lambda o: "{not json", ":1: field '<json>'"),
+    (lambda o: json.dumps({**o, "boxes": [[5, 5, 1, 9, 0.5, 0, 0]]}), ":1: field 'boxes[0]'"),
+    (lambda o: json.dumps({**o, "relations": [[0, 999]]}), ":1: field 'relations[0]'"),
+    (lambda o: json.dumps({k: v for k, v in o.items() if k != "width"}), ":1: field 'width'"),
+])
+def test_malformed_predictions_exit_2_with_file_line_field(data, tmp_path, capsys, mutate, where):
+    obj = json.loads((data / "labels.jsonl").read_text().splitlines()[0])
+    (tmp_path / "pred.jsonl").write_text(mutate(obj) + "\n")
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and where in err and "Traceback" not in err
+
+
+def test_missing_files_are_clear_errors(data, tmp_path, capsys):
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "nope.jsonl")]) == 2
+    assert "predictions file not found" in capsys.readouterr().err
+    assert main(["--gt", str(tmp_path), "--pred", str(data / "labels.jsonl")]) == 2
+    assert "not a WORD-style dataset" in capsys.readouterr().err
+
+
+def test_cli_as_a_module_has_no_traceback(data, tmp_path):
+    import subprocess
+    import sys
+
+    (tmp_path / "pred.jsonl").write_text("[1, 2]\n")
+    proc = subprocess.run([sys.executable, "-m", "stages.evaluate.score", "--gt", str(data), "--pred",
+                           str(tmp_path / "pred.jsonl")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "pred.jsonl:1" in proc.stderr and "Traceback" not in proc.stderr

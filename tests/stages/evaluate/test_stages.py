@@ -1,0 +1,100 @@
+"""The priors and evaluate stages' run() on a tiny hand-built dataset directory."""
+
+import json
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+from tiny_word import build
+
+from stages.evaluate.methods import DETECTOR_PREDICTIONS
+from stages.evaluate.stage import run as run_evaluate
+from stages.priors.mixture import load_priors
+from stages.priors.stage import run as run_priors
+from stages.word_format import SUBSETS, open_dataset, write_records
+
+PRIORS_CFG = {"mode": "prior", "components": [1, 3], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
+              "plot_bins": 30}
+EVAL_CFG = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "logic_plus", "prior"],
+            "box_sources": ["gt", "detected"], "fit_images": 60, "gallery_images": 2}
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    base = tmp_path_factory.mktemp("chain")
+    data = build(base / "data", n_train=40, n_test=16)
+    priors_dir = base / "priors"
+    priors_dir.mkdir()
+    pm = run_priors(OmegaConf.create({"priors": PRIORS_CFG, "seed": 0}), {"data": data}, priors_dir)
+    return base, data, priors_dir, pm
+
+
+def test_priors_stage_outputs(chain):
+    _, _, priors_dir, metrics = chain
+    assert 1 <= metrics["priors.wheel_vehicle.components"] <= 3
+    assert 1 <= metrics["priors.wheel_wheel.components"] <= 3
+    assert all(np.isfinite(v) for v in metrics.values())
+    assert (priors_dir / "artifacts" / "priors.png").stat().st_size > 1000
+    p = load_priors(priors_dir)
+    v = p.wheel_vehicle(np.exp(np.linspace(-2, 3, 100)))
+    assert v.min() >= 0 and v.max() <= 1 and v.max() > 0.9
+
+
+def test_priors_stage_posterior_mode(chain, tmp_path):
+    _, data, _, _ = chain
+    cfg = OmegaConf.create({"priors": dict(PRIORS_CFG, mode="posterior"), "seed": 0})
+    run_priors(cfg, {"data": data}, tmp_path)
+    p = load_priors(tmp_path)
+    assert p.wheel_wheel.mode == "posterior"
+    v = p.wheel_wheel(np.exp(np.linspace(-2, 3, 100)))
+    assert v.min() >= 0 and v.max() <= 1
+
+
+def test_evaluate_stage_report_metrics_and_gallery(chain, tmp_path):
+    _, data, priors_dir, _ = chain
+    cfg = OmegaConf.create({"eval": EVAL_CFG, "seed": 0})
+    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
+    for method in ("logic", "logic_plus", "prior"):
+        for subset in SUBSETS:
+            for m in ("wheel_acc", "pair_precision", "pair_recall", "pair_f1", "couple_f1", "image_acc"):
+                assert 0 <= metrics[f"eval.gt.{method}.{subset}.{m}"] <= 100
+    assert not any(k.startswith("eval.detected") for k in metrics)  # no detector input
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["results"]["gt"]["logic_plus"]["hard"]["wheel_acc"] == metrics["eval.gt.logic_plus.hard.wheel_acc"]
+    md = (tmp_path / "report.md").read_text()
+    assert "| logic_plus |" in md and "*92.91*" in md and "detected" in md  # skipped source noted
+    assert (tmp_path / "artifacts" / "report.md").is_file()
+    assert set(json.loads((tmp_path / "baselines.json").read_text())) == {"logic", "logic_plus", "prior"}
+    gallery = sorted((tmp_path / "artifacts" / "gallery").glob("*.png"))
+    assert 0 < len(gallery) <= 2
+    assert metrics["eval.gt.logic_plus.mixed.wheel_acc"] > 90
+
+
+def test_evaluate_stage_detected_boxes(chain, tmp_path):
+    _, data, priors_dir, _ = chain
+    ds = open_dataset(data)
+    test = ds.subset("test")
+    detector = tmp_path / "detector"
+    detector.mkdir()
+    # "detections": the ground-truth boxes shifted by one pixel, real-looking scores; one image missing
+    shifted = []
+    for r in test[1:]:
+        b = r.boxes.copy()
+        b[:, :4] += 1.0
+        b[:, :4] = np.minimum(b[:, :4], [r.width, r.height, r.width, r.height])
+        b[:, 4] = 0.9
+        shifted.append(type(r)(**{**r.__dict__, "boxes": b, "relations": [], "wheel_pairs": []}))
+    write_records(detector / DETECTOR_PREDICTIONS, shifted)
+    out = tmp_path / "eval"
+    out.mkdir()
+    cfg = OmegaConf.create({"eval": dict(EVAL_CFG, methods=["logic"], gallery_images=0), "seed": 0})
+    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "detector": detector}, out)
+    gt, det = metrics["eval.gt.logic.easy.wheel_acc"], metrics["eval.detected.logic.easy.wheel_acc"]
+    assert det <= gt and det > 50  # nearly the same boxes, but the missing image's wheels are all missed
+
+
+def test_unknown_method_is_an_error(chain, tmp_path):
+    _, data, priors_dir, _ = chain
+    cfg = OmegaConf.create({"eval": dict(EVAL_CFG, methods=["oracle"]), "seed": 0})
+    with pytest.raises(ValueError, match="unknown method 'oracle'"):
+        run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
