@@ -86,9 +86,8 @@ class CenterNetModule(L.LightningModule):
         ap = coco_average_precision(preds, [records[i] for i in order], CLASS_NAMES)
         values = {f"val/{m}.{c}": v[m] for c, v in ap.items() for m in ("ap50", "ap")}
         values = {k: (0.0 if math.isnan(v) else v) for k, v in values.items()}
-        values["val/ap50"] = float(np.mean([values[f"val/ap50.{c}"] for c in CLASS_NAMES]))
-        self.log_dict(values, prog_bar=False)
-        self.log("val/ap50", values["val/ap50"], prog_bar=True)
+        self.log_dict(values)
+        self.log("val/ap50", float(np.mean([values[f"val/ap50.{c}"] for c in CLASS_NAMES])), prog_bar=True)
 
     def configure_optimizers(self):
         opt = torch.optim.AdamW(self.parameters(), lr=self.optim_cfg["lr"], weight_decay=self.optim_cfg["weight_decay"])

@@ -1,0 +1,89 @@
+import json
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from stages.detector.lightning import (
+    CenterNetModule,
+    DetectorDataModule,
+    NonFiniteLossError,
+    check_finite_loss,
+)
+from stages.detector.model import load_detector, model_config
+from stages.word_format import open_dataset, read_records
+
+CONF = Path(__file__).resolve().parents[3] / "conf"
+
+
+def detector_cfg(**overrides) -> dict:
+    """The real detector config files, shrunk for the toy dataset (128 x 96 images)."""
+    cfg = OmegaConf.load(CONF / "detector" / "default.yaml")
+    cfg.backbone = OmegaConf.load(CONF / "detector" / "backbone" / "tiny.yaml")
+    cfg.merge_with({"input_width": 128, "input_height": 96, "batch_size": 4, "epochs": 1, "render_images": 2,
+                    "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "out_channels": 16,
+                                                         "head_conv": 16}})
+    cfg.merge_with(overrides)
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def test_fast_dev_run(toy_dataset, tmp_path):
+    det = detector_cfg()
+    ds = open_dataset(toy_dataset)
+    module = CenterNetModule(model_config(det), det["loss"], det["optimizer"], det["score_threshold"])
+    data = DetectorDataModule(ds.root, ds.subset("train"), ds.subset("val"), det["input_width"], det["input_height"],
+                              det["augment"], det["batch_size"], 0, det["min_overlap"])
+    batch = next(iter(data.train_dataloader()))
+    assert batch["image"].shape == (4, 3, 96, 128) and batch["hm"].shape == (4, 2, 24, 32)
+    assert batch["mask"].sum() >= 4 * 3  # every toy image has a vehicle and two wheels
+    trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        default_root_dir=tmp_path)
+    trainer.fit(module, datamodule=data)
+    assert np.isfinite(trainer.callback_metrics["train/loss_step"].item())
+    assert "val/ap50" in trainer.callback_metrics and "val/ap50.wheel" in trainer.callback_metrics
+
+
+def test_non_finite_loss_stops_with_a_clear_message():
+    with pytest.raises(NonFiniteLossError, match="non-finite training loss nan at epoch 3, step 7"):
+        check_finite_loss(torch.tensor(float("nan")), {"hm": torch.tensor(float("nan"))}, 3, 7)
+    check_finite_loss(torch.tensor(1.5), {}, 0, 0)
+
+
+def test_empty_val_split_is_an_error(toy_dataset):
+    ds = open_dataset(toy_dataset)
+    with pytest.raises(ValueError, match="val split is empty"):
+        DetectorDataModule(ds.root, ds.subset("train"), [], 128, 96, None, 4, 0, 0.7)
+
+
+def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
+    from stages.detector.stage import run
+
+    cfg = OmegaConf.create({"detector": detector_cfg(epochs=2), "seed": 3,
+                            "trainer": OmegaConf.load(CONF / "trainer" / "cpu.yaml")})
+    cfg.trainer.threads = 1
+    out = tmp_path / "detector"
+    out.mkdir()
+    metrics = run(cfg, {"data": toy_dataset}, out)
+
+    for split in ("val", "test"):
+        for kind in ("ap50", "ap"):
+            for name in ("vehicle", "wheel"):
+                assert 0.0 <= metrics[f"detector.{split}.{kind}.{name}"] <= 100.0
+    assert json.loads((out / "metrics.json").read_text()) == metrics
+    ds = open_dataset(toy_dataset)
+    for split in ("val", "test"):
+        preds = read_records(out / f"predictions_{split}.jsonl", root=ds.root, allow_empty=True)
+        truth = ds.subset(split)
+        assert [p.image for p in preds] == [t.image for t in truth]
+        for p in preds:
+            assert p.relations == [] and len(set(p.box_ids)) == len(p.box_ids)
+            assert np.all(p.scores >= 0.1) and np.all(p.xyxy >= 0)
+            assert np.all(p.xyxy[:, [0, 2]] <= p.width) and np.all(p.xyxy[:, [1, 3]] <= p.height)
+    assert (out / "checkpoints" / "last.ckpt").is_file() and (out / "checkpoints" / "best.ckpt").is_file()
+    assert (out / "artifacts" / "detections_test.png").stat().st_size > 1000
+    assert (out / "artifacts" / "curves.png").is_file()
+    net, config = load_detector(out)
+    assert config["input_width"] == 128 and not net.training
