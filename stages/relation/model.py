@@ -1,7 +1,7 @@
 """The DeepWORD relation network as a plain torch module (DESIGN §6), written to export to ONNX.
 
     x (B, N, 7, S, S) --backbone--> h (B, N, H) --GAT re-weighting of adj (Eq. 3-5)--> W'
-    --graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings
+    --residual graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings
     --> cosine scores: ownership (wheel-vehicle pairs) and couples (wheel-wheel pairs); a role head
     gives each wheel's probability of being a front wheel (orders predicted couples rear -> front).
 
@@ -164,8 +164,8 @@ class RelationNet(nn.Module):
     def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
         """Graph part on backbone features h (B, N, hidden)."""
         weights, _ = self.edge_weights(h, adj)
-        for layer in self.gcn:
-            h = F.relu(layer(weights @ h))
+        for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
+            h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
         couple = F.normalize(self.couple_head(h), dim=-1)
         cand = cand.to(h.dtype)

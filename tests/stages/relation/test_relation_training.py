@@ -1,0 +1,142 @@
+"""Training: overfitting one batch, Lightning fast_dev_run, NaN loss, and the stage end to end."""
+
+import json
+from dataclasses import asdict
+
+import lightning as L
+import numpy as np
+import pytest
+import relation_data as rd
+import torch
+from omegaconf import OmegaConf
+from torch.utils.data import default_collate
+
+from stages.relation.inputs import InputConfig
+from stages.relation.lightning import GraphDataset, RelationDataModule, RelationModule, score_split
+from stages.relation.model import ModelConfig
+
+torch.set_num_threads(1)
+TINY = ModelConfig(backbone="conv_fc", input_size=28, expansion=1, hidden=64, embed_dim=32, gat_hidden=32)
+LOSS = {"pos_weight": 1.0, "neg_weight": 1.0, "role_weight": 0.1}
+DECODE = {"threshold": 0.5, "one_owner": True}
+
+
+def _module(lr: float = 3e-3) -> RelationModule:
+    torch.manual_seed(0)
+    return RelationModule(model=asdict(TINY), loss=LOSS, decode=DECODE, optim={"lr": lr, "weight_decay": 0.0})
+
+
+def _split(n: int, seed: int = 0):
+    return rd.split(rd.records(n, seed=seed), InputConfig(input_size=28, max_objects=16))
+
+
+def test_overfits_one_batch_to_full_wheel_accuracy():
+    split = _split(8)
+    module = _module()
+    batch = default_collate([GraphDataset(split)[i] for i in range(len(split))])
+    opt = torch.optim.Adam(module.parameters(), lr=3e-3)
+    start = score_split(module, split, 8)["wheel_acc"]
+    for _ in range(100):
+        module.train()
+        loss = module._loss(module(batch), batch)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    metrics = score_split(module, split, 8)
+    assert start < 90 and metrics["wheel_acc"] == 100.0 and metrics["couple_f1"] > 95
+
+
+def _trainer(**kw) -> L.Trainer:
+    return L.Trainer(accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
+                     enable_progress_bar=False, enable_model_summary=False, **kw)
+
+
+def test_fast_dev_run_trains_and_validates():
+    data = RelationDataModule(_split(6), _split(4, seed=1), batch_size=3, hflip=0.5)
+    module = _module()
+    before = [p.detach().clone() for p in module.parameters()]
+    _trainer(fast_dev_run=True).fit(module, datamodule=data)
+    assert any(not torch.equal(a, b) for a, b in zip(before, module.parameters(), strict=True))
+
+
+def test_nan_loss_stops_training_with_a_clear_message():
+    train = _split(4)
+    train.coords[0, 0, 0] = np.nan  # one poisoned node input
+    data = RelationDataModule(train, _split(2, seed=1), batch_size=4)
+    with pytest.raises(FloatingPointError, match=r"relation: training loss is nan .* epoch 0, batch 0"):
+        _trainer(max_epochs=1, num_sanity_val_steps=0).fit(_module(), datamodule=data)
+
+
+def test_hflip_mirrors_crops_and_x_coordinates_only():
+    split = _split(1)
+    plain, flipped = GraphDataset(split)[0], GraphDataset(split, hflip=1.0)[0]
+    k = int(split.valid[0].sum())
+    assert torch.equal(flipped["crops"], plain["crops"].flip(-1))
+    assert torch.allclose(flipped["coords"][:k, 0], 1 - plain["coords"][:k, 2])
+    assert torch.equal(flipped["coords"][:k, 1::2], plain["coords"][:k, 1::2])
+    assert torch.equal(flipped["coords"][k:], plain["coords"][k:]) and torch.equal(flipped["adj"], plain["adj"])
+
+
+def _write_dataset(root, n_train=16, n_val=6):
+    """A data-stage-like directory (labels, PNGs, dataset.json, splits.json) and a priors directory."""
+    import cv2
+
+    from stages.priors.mixture import Mixture1D, PairPrior, Priors
+    from stages.word_format import write_dataset_index, write_records
+
+    recs = rd.records(n_train + n_val, seed=2)
+    for rec in recs:
+        path = root / "data" / rec.image
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), cv2.cvtColor(rd.render(rec), cv2.COLOR_RGB2BGR))
+    write_records(root / "data" / "labels.jsonl", recs)
+    images = [r.image for r in recs]
+    splits = {"train": images[:n_train], "val": images[n_train:], "test": images[n_train:], "easy": [],
+              "hard": [], "mixed": []}
+    write_dataset_index(root / "data", root / "data", splits)
+
+    def prior(mu):
+        mix = Mixture1D(weights=[1.0], means=[float(np.log(mu))], variances=[0.36])
+        return PairPrior(mode="prior", pair=mix, normaliser=mix.max_density())
+
+    (root / "priors").mkdir()
+    Priors(prior(3.0), prior(4.0)).save(root / "priors")
+    return recs
+
+
+@pytest.mark.slow
+def test_stage_trains_saves_and_predicts(tmp_path):
+    from stages.relation.predict import RelationPredictor
+    from stages.relation.stage import run
+
+    recs = _write_dataset(tmp_path)
+    rel = OmegaConf.load("conf/relation/default.yaml")
+    del rel["defaults"]
+    rel.backbone = OmegaConf.load("conf/relation/backbone/conv_fc.yaml")
+    rel.max_objects = 16
+    rel.model.hidden, rel.model.embed_dim = 32, 16
+    rel.train.epochs, rel.train.batch_size = 2, 8
+    trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
+                                "precision": "32-true", "threads": 1})
+    cfg = OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0})
+    out = tmp_path / "relation"
+    out.mkdir()
+    metrics = run(cfg, {"data": tmp_path / "data", "priors": tmp_path / "priors"}, out)
+
+    assert {"relation.val.wheel_acc", "relation.val.image_acc", "relation.params", "relation.size_mb"} <= set(metrics)
+    assert 0 <= metrics["relation.val.wheel_acc"] <= 100 and metrics["relation.params"] > 1000
+    assert sorted(p.name for p in out.iterdir()) == ["artifacts", "relation.json", "relation.pt"]
+    assert (out / "artifacts" / "relation_curves.png").stat().st_size > 1000
+    meta = json.loads((out / "relation.json").read_text())
+    assert meta["has_roles"] and meta["inputs"]["max_objects"] == 16 and meta["seed"] == 0
+
+    predictor = RelationPredictor.from_dirs(out, tmp_path / "priors")
+    rec = recs[-1]
+    pred = predictor.predict(rec, rd.render(rec))
+    assert np.array_equal(pred.boxes, rec.boxes)
+    wheels = set(rec.box_ids[rec.class_ids == 1].tolist())
+    assert all(w in wheels and v not in wheels for v, w, _ in pred.relations)
+    assert len({w for _, w, _ in pred.relations}) == len(pred.relations)  # one owner per wheel
+    # the predictor decides exactly what the training-time decoder decided (same weights, same graph)
+    many = predictor.predict_many(recs[16:], rd.render, batch_size=4)
+    assert [r.relations for r in many][-1] == pred.relations
