@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from stages.detector.decode import ctdet_decode
 from stages.detector.letterbox import Letterbox, boxes_to_original, preprocess
-from stages.detector.model import DOWN_RATIO, CenterNet
 from stages.word_format import Record, load_image
+
+if TYPE_CHECKING:  # torch loads only in predict_records: the onnxruntime path uses detections_to_record
+    from stages.detector.model import CenterNet
 
 # Boxes thinner than this after clipping to the image (e.g. centred outside it) are not boxes; the WORD
 # format also needs x1 < x2 after its 2-decimal rounding.
@@ -29,10 +30,14 @@ def detections_to_record(detections: np.ndarray, source: Record, box: Letterbox,
                   height=source.height, boxes=boxes, relations=[], wheel_pairs=[], scene=source.scene)
 
 
-@torch.no_grad()
 def predict_records(net: CenterNet, root: str | Path, records: list[Record], input_width: int, input_height: int,
                     k: int, score_threshold: float, batch_size: int = 16) -> list[Record]:
     """Detect on every record's image (letterboxed to the input size) and return one prediction per record."""
+    import torch
+
+    from stages.detector.decode import ctdet_decode
+    from stages.detector.model import DOWN_RATIO
+
     net.eval()
     device = next(net.parameters()).device
     out: list[Record] = []
@@ -40,6 +45,7 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
         chunk = records[start:start + batch_size]
         inputs, boxes = zip(*(preprocess(load_image(root, r), input_width, input_height) for r in chunk), strict=True)
         x = torch.from_numpy(np.stack(inputs)).to(device)
-        detections = ctdet_decode(*net(x), k=k, down_ratio=DOWN_RATIO).cpu().numpy()
+        with torch.no_grad():
+            detections = ctdet_decode(*net(x), k=k, down_ratio=DOWN_RATIO).cpu().numpy()
         out += [detections_to_record(d, r, b, score_threshold) for d, r, b in zip(detections, chunk, boxes, strict=True)]
     return out

@@ -15,11 +15,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from stages.relation.decode import decode_couples, decode_owners
 from stages.relation.inputs import ImageGraph, InputConfig, build_graph, node_tensor
 from stages.word_format import Record
+
+# torch is imported inside the methods that run the network: ``prediction_record`` (and the class) stay
+# importable by the onnxruntime inference path, which must not load torch.
 
 
 class RelationPredictor:
@@ -45,9 +46,10 @@ class RelationPredictor:
     def graph(self, rec: Record, rgb: np.ndarray) -> ImageGraph:
         return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
 
-    @torch.no_grad()
     def scores(self, graphs: Sequence[ImageGraph]):
         """Ownership and couple scores (B, N, N) and front probabilities (B, N), N = largest graph."""
+        import torch
+
         n = max([len(g.classes) for g in graphs] + [1])
         size = self.inputs.input_size
         b = len(graphs)
@@ -61,11 +63,14 @@ class RelationPredictor:
             crops[i, :k], coords[i, :k] = torch.from_numpy(g.crops), torch.from_numpy(g.coords)
             adj[i, :k, :k], cand[i, :k, :k] = torch.from_numpy(g.adj), torch.from_numpy(g.cand.astype(np.float32))
             classes[i, :k] = torch.from_numpy(g.classes.astype(np.int64))
-        owner, couple, front = self.net(node_tensor(crops, coords), adj, cand)
+        with torch.no_grad():
+            owner, couple, front = self.net(node_tensor(crops, coords), adj, cand)
         return owner, couple, front, classes, cand
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
+        from stages.relation.decode import decode_couples, decode_owners
+
         out = []
         for start in range(0, len(records), batch_size):
             chunk = records[start:start + batch_size]
@@ -74,23 +79,27 @@ class RelationPredictor:
             pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner)
             pred_couple = decode_couples(couple, classes, cand, self.threshold)
             for i, rec in enumerate(chunk):
-                out.append(self._record(rec, pred_owner[i].numpy(), pred_couple[i].numpy(), front[i].numpy()))
+                out.append(prediction_record(rec, pred_owner[i].numpy(), pred_couple[i].numpy(), front[i].numpy(),
+                                             self.has_roles))
         return out
 
     def predict(self, rec: Record, rgb: np.ndarray) -> Record:
         return self.predict_many([rec], lambda _: rgb)[0]
 
-    def _record(self, rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarray, front: np.ndarray) -> Record:
-        """The record with its boxes unchanged and the decided relations and couples."""
-        ids = rec.box_ids
-        n = len(ids)
-        relations = []
-        for w, v in zip(*np.nonzero(pred_owner[:n, :n]), strict=True):
-            role = ("front" if front[w] > 0.5 else "rear") if self.has_roles else None
-            relations.append((int(ids[v]), int(ids[w]), role))
-        pairs = []
-        centre_x = (rec.xyxy[:, 0] + rec.xyxy[:, 2]) / 2 if n else np.zeros(0)
-        for a, b in zip(*np.nonzero(np.triu(pred_couple[:n, :n], 1)), strict=True):
-            rear_first = front[a] <= front[b] if self.has_roles else centre_x[a] <= centre_x[b]
-            pairs.append((int(ids[a]), int(ids[b])) if rear_first else (int(ids[b]), int(ids[a])))
-        return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs))
+
+def prediction_record(rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarray, front: np.ndarray,
+                      has_roles: bool) -> Record:
+    """The record with its boxes unchanged and the decided relations and couples (wheel rows, vehicle
+    columns in ``pred_owner``; symmetric ``pred_couple``; ``front`` probabilities)."""
+    ids = rec.box_ids
+    n = len(ids)
+    relations = []
+    for w, v in zip(*np.nonzero(pred_owner[:n, :n]), strict=True):
+        role = ("front" if front[w] > 0.5 else "rear") if has_roles else None
+        relations.append((int(ids[v]), int(ids[w]), role))
+    pairs = []
+    centre_x = (rec.xyxy[:, 0] + rec.xyxy[:, 2]) / 2 if n else np.zeros(0)
+    for a, b in zip(*np.nonzero(np.triu(pred_couple[:n, :n], 1)), strict=True):
+        rear_first = front[a] <= front[b] if has_roles else centre_x[a] <= centre_x[b]
+        pairs.append((int(ids[a]), int(ids[b])) if rear_first else (int(ids[b]), int(ids[a])))
+    return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs))
