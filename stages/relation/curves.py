@@ -9,14 +9,13 @@ import lightning as L
 
 
 class CurveHistory(L.Callback):
-    """Per validated epoch: train/loss (when an epoch of training preceded it), val/loss, val/wheel_acc."""
+    """Per epoch: train/loss, val/loss, val/wheel_acc. Read at the end of the training epoch, when Lightning
+    has reduced the epoch's train loss and the epoch's validation has run."""
 
     def __init__(self):
         self.rows: list[dict[str, float]] = []
 
-    def on_validation_epoch_end(self, trainer, pl_module):
-        if trainer.sanity_checking:
-            return
+    def on_train_epoch_end(self, trainer, pl_module):
         m = trainer.callback_metrics
         row = {"epoch": float(trainer.current_epoch)}
         for key in ("train/loss", "val/loss", "val/wheel_acc"):

@@ -122,7 +122,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     has_roles = bool((train.role >= 0).any())
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain["decode"], "has_roles": has_roles,
-        "seed": int(cfg.seed), "best_epoch": int(best.get("epoch", -1)), "metrics": metrics}, indent=1))
+        "seed": int(cfg.seed), "best_epoch": int(best.get("epoch", -1)), "metrics": metrics,
+        "curves": history.rows}, indent=1))
     plot_curves(history.rows, out_dir / "artifacts" / "relation_curves.png")
     shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry
     shutil.rmtree(ckpt_dir, ignore_errors=True)  # relation.pt holds the best weights

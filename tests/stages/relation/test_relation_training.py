@@ -129,6 +129,7 @@ def test_stage_trains_saves_and_predicts(tmp_path):
     assert (out / "artifacts" / "relation_curves.png").stat().st_size > 1000
     meta = json.loads((out / "relation.json").read_text())
     assert meta["has_roles"] and meta["inputs"]["max_objects"] == 16 and meta["seed"] == 0
+    assert [sorted(r) for r in meta["curves"]] == [["epoch", "train/loss", "val/loss", "val/wheel_acc"]] * 2
 
     predictor = RelationPredictor.from_dirs(out, tmp_path / "priors")
     rec = recs[-1]
