@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stages.evaluate.metrics import score_image
 from stages.word_format import Record, load_image
 
 
@@ -34,8 +35,8 @@ def _panel(rgb: np.ndarray, rec: Record, label: str) -> np.ndarray:
 
 
 def write_gallery(out_dir: Path, root: Path, gts: list[Record], preds: dict[str, dict[str, Record]],
-                  limit: int) -> list[Path]:
-    """One PNG per chosen image: ground truth, then every method, left to right."""
+                  limit: int, min_box_px: float = 0.0) -> list[Path]:
+    """One PNG per chosen image: ground truth, then every method (titled with its wrong wheels), left to right."""
     import cv2
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -43,7 +44,10 @@ def write_gallery(out_dir: Path, root: Path, gts: list[Record], preds: dict[str,
     for k, gt in enumerate(disagreements(gts, preds, limit)):
         rgb = load_image(root, gt)
         panels = [_panel(rgb, gt, "ground truth")]
-        panels += [_panel(rgb, p[gt.image], name) for name, p in preds.items() if gt.image in p]
+        for name, p in preds.items():
+            if gt.image in p:
+                c = score_image(gt, p[gt.image], min_box_px)
+                panels.append(_panel(rgb, p[gt.image], f"{name}: {c.wheels - c.wheels_correct}/{c.wheels} wheels wrong"))
         sheet = np.concatenate(panels, axis=1)
         path = out_dir / f"{k:03d}_{Path(gt.image).stem}_{gt.camera}.png"
         cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))

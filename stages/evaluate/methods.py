@@ -53,10 +53,20 @@ class EvalContext:
         return fit_couple_rule(self.train)
 
 
+def deepword(ctx: EvalContext):
+    """The trained relation network (PyTorch) on the given boxes; needs the relation stage's output."""
+    if "relation" not in ctx.inputs:
+        return None
+    from stages.relation.predict import DeepWordMethod
+
+    return DeepWordMethod.from_dirs(ctx.inputs["relation"], ctx.inputs["priors"], ctx.dataset.root)
+
+
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule),
     "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule),
     "prior": lambda ctx: fit_prior(ctx.train, ctx.priors),
+    "deepword": deepword,
 }
 
 

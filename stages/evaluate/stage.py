@@ -80,5 +80,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     for name in ("report.md", "report.json", BASELINES_FILE):
         shutil.copy(out_dir / name, artifacts / name)
     test = ds.subset("test")
-    write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images))
+    write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images), min_px)
     return flatten(results)
