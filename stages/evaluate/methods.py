@@ -4,11 +4,10 @@ A method factory takes the EvalContext and returns an object with ``name`` and
 ``predict(record) -> Record`` (same boxes, predicted relations and couples), or None when an upstream
 stage it needs is not among the evaluate stage's inputs (the row is then reported as skipped).
 A box source returns ``{image: Record}`` for the test split holding only boxes (relations cleared), or
-None when unavailable. Adding DeepWORD or the detector is one entry each, e.g.
-
-    METHODS["deepword"] = lambda ctx: load_onnx_relation(ctx.inputs["export"], ctx.priors) \
-        if "export" in ctx.inputs else None
-    # and in conf/config.yaml: evaluate.inputs += [export]; conf/eval: methods += [deepword]
+None when unavailable. Adding a row is one factory in ``METHODS``, its upstream stage in the evaluate stage's ``inputs``
+(conf/config.yaml) and its name in ``eval.methods``; ``deepword`` below is the example (an ONNX
+``deepword_int8`` row reads ``ctx.inputs["export"]`` the same way). A box source is one function in
+``BOX_SOURCES``.
 """
 
 from __future__ import annotations
