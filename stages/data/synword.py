@@ -1,0 +1,158 @@
+"""The synthetic WORD-style generator (``data=synword``): scenes -> four fisheye renders -> labels.
+
+Labels come from the render: a box is the bbox of the object's visible pixels in the id buffer (a
+vehicle's includes its visible wheels), an object is annotated only if at least ``min_visible_fraction``
+of the pixels it would cover unoccluded are visible and its shorter side is at least ``min_box_px``;
+relations, roles and couples come from the 3D truth. Frames are independent (per-frame seed from the
+config seed and the frame index), so generation parallelises across processes and stays deterministic.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stages.data.camera import camera_from_config
+from stages.data.render import (
+    TEX_HALF,
+    TEX_RES,
+    build_tables,
+    ego_vehicle,
+    finish,
+    ground_texture,
+    render_camera,
+)
+from stages.data.world import SceneSampler
+from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
+
+
+class FrameGenerator:
+    """Everything a process needs to render frames; per-camera tables are built once."""
+
+    def __init__(self, cfg: dict, seed: int):
+        self.cfg = cfg
+        self.seed = int(seed)
+        w, h = cfg["image_size"]
+        cams = cfg["cameras"]
+        self.cameras = [camera_from_config(name, cams[name], w, h, cams["reference_size"]) for name in CAMERAS]
+        self.ego = ego_vehicle(cfg["ego"])
+        self.tables = [build_tables(cam, self.ego) for cam in self.cameras]
+        self.sampler = SceneSampler(cfg["scenes"], self.ego.length, self.ego.width)
+        n = int(round(2 * TEX_HALF / TEX_RES))
+        blotches = np.random.default_rng(12345).normal(0, 1, (n // 16, n // 16)).astype(np.float32)
+        fine = np.random.default_rng(54321).normal(0, 1, (n, n)).astype(np.float32)
+        self.noise = np.clip(128 + 9 * cv2.resize(blotches, (n, n), interpolation=cv2.INTER_CUBIC) + 5 * fine,
+                             0, 255).astype(np.uint8)
+
+    def frame_rng(self, frame_id: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([self.seed, int(frame_id)]))
+
+    def render_frame(self, frame_id: int):
+        """-> list of (camera name, RGB uint8 image, Record) for the frame's four cameras."""
+        rng = self.frame_rng(frame_id)
+        scene = self.sampler.sample(rng)
+        rcfg = self.cfg["render"]
+        sun_az, sun_el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(25, 65))
+        sun = np.array([math.cos(sun_az) * math.cos(sun_el), math.sin(sun_az) * math.cos(sun_el), math.sin(sun_el)])
+        tex = ground_texture(scene, self.noise, sun)
+        skyline = rng.uniform(3, 25, 72).astype(np.float32) * (rng.random(72) < 0.8)
+        skyline_rgb = (rng.uniform(0.35, 0.75, (72, 1)) * rng.uniform(0.85, 1.15, (72, 3))).astype(np.float32)
+        haze = np.array([0.72, 0.75, 0.78], np.float32)
+        out = []
+        for tables in self.tables:
+            rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun, haze)
+            img = finish(rgb, rng, rcfg["noise_sigma"], rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
+            rec = self.labels(frame_id, tables.cam.name, scene, vstats, wstats, rng)
+            out.append((tables.cam.name, img, rec))
+        return out
+
+    def labels(self, frame_id, camera, scene, vstats, wstats, rng) -> Record:
+        min_vis, min_px = self.cfg["min_visible_fraction"], self.cfg["min_box_px"]
+
+        def annotated(st) -> bool:
+            if st.bbox is None or st.own_px == 0:
+                return False
+            x1, y1, x2, y2 = st.bbox
+            return st.visible_px / st.own_px >= min_vis and min(x2 - x1, y2 - y1) >= min_px
+
+        nv = len(scene.vehicles)
+        objs = [(VEHICLE, i) for i in range(nv) if annotated(vstats[i])]
+        objs += [(WHEEL, j) for j in range(4 * nv) if annotated(wstats[j])]
+        ids = rng.permutation(len(objs))  # box ids carry no hint of which wheel belongs to which vehicle
+        box_id = {obj: int(b) for obj, b in zip(objs, ids, strict=True)}
+        boxes = []
+        for (cls, idx), b in zip(objs, ids, strict=True):
+            st = vstats[idx] if cls == VEHICLE else wstats[idx]
+            boxes.append([*map(float, st.bbox), 1.0, cls, int(b)])
+        relations, pairs = [], []
+        for i, v in enumerate(scene.vehicles):
+            for k, (role, _, _) in enumerate(v.wheels):
+                wk = (WHEEL, 4 * i + k)
+                if wk in box_id and (VEHICLE, i) in box_id:
+                    relations.append((box_id[(VEHICLE, i)], box_id[wk], role))
+            for rear, front in ((0, 1), (2, 3)):  # wheels are listed rear, front per side
+                a, b = (WHEEL, 4 * i + rear), (WHEEL, 4 * i + front)
+                if a in box_id and b in box_id:
+                    pairs.append((box_id[a], box_id[b]))
+        w, h = self.cfg["image_size"]
+        arr = np.array(sorted(boxes, key=lambda r: r[6]), dtype=np.float64).reshape(-1, 7)
+        return Record(image=image_path(camera, frame_id), frame_id=int(frame_id), camera=camera, width=int(w),
+                      height=int(h), boxes=arr, relations=relations, wheel_pairs=pairs, scene=scene.kind,
+                      extra={"layout": scene.layout})
+
+
+def image_path(camera: str, frame_id: int) -> str:
+    return f"images/{camera}/{frame_id:06d}.png"
+
+
+# --- parallel generation ------------------------------------------------------------------------------
+
+_WORKER: dict = {}
+
+
+def _init_worker(cfg: dict, seed: int, out_dir: str) -> None:
+    cv2.setNumThreads(1)  # one process per core; OpenCV's own threads would oversubscribe
+    _WORKER["gen"] = FrameGenerator(cfg, seed)
+    _WORKER["out"] = Path(out_dir)
+
+
+def _work(frame_id: int) -> list[Record]:
+    return write_frame(_WORKER["gen"], frame_id, _WORKER["out"])
+
+
+def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Record]:
+    """Render a frame, write its images, return the records worth keeping (>= 1 owner-member relation)."""
+    kept = []
+    for camera, img, rec in gen.render_frame(frame_id):
+        if not rec.relations:
+            continue
+        path = out_dir / rec.image
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        kept.append(rec)
+    return kept
+
+
+def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, progress: bool = True) -> list[Record]:
+    """Generate ``cfg['frames']`` frames into ``out_dir`` (images/<camera>/<frame>.png); returns the records
+    in frame, camera order. ``workers`` processes (default: all cores); 1 renders in this process."""
+    from tqdm import tqdm
+
+    n = int(cfg["frames"])
+    workers = max(1, min(int(workers or os.cpu_count() or 1), n))
+    frames = range(n)
+    bar = dict(total=n, desc="synword frames", unit="frame", disable=not progress)
+    if workers == 1:
+        gen = FrameGenerator(cfg, seed)
+        results = [write_frame(gen, f, out_dir) for f in tqdm(frames, **bar)]
+    else:
+        ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg, seed, str(out_dir))) as pool:
+            results = list(tqdm(pool.imap(_work, frames, chunksize=2), **bar))
+    order = {c: i for i, c in enumerate(CAMERAS)}
+    return sorted((r for recs in results for r in recs), key=lambda r: (r.frame_id, order[r.camera]))
