@@ -5,9 +5,8 @@ A method factory takes the EvalContext and returns an object with ``name`` and
 stage it needs is not among the evaluate stage's inputs (the row is then reported as skipped).
 A box source returns ``{image: Record}`` for the test split holding only boxes (relations cleared), or
 None when unavailable. Adding a row is one factory in ``METHODS``, its upstream stage in the evaluate stage's ``inputs``
-(conf/config.yaml) and its name in ``eval.methods``; ``deepword`` below is the example (an ONNX
-``deepword_int8`` row reads ``ctx.inputs["export"]`` the same way). A box source is one function in
-``BOX_SOURCES``.
+(conf/config.yaml) and its name in ``eval.methods``; ``deepword_onnx`` below is the example. A box
+source is one function in ``BOX_SOURCES``.
 """
 
 from __future__ import annotations
@@ -52,20 +51,26 @@ class EvalContext:
         return fit_couple_rule(self.train)
 
 
-def deepword(ctx: EvalContext):
-    """The trained relation network (PyTorch) on the given boxes; needs the relation stage's output."""
-    if "relation" not in ctx.inputs:
-        return None
-    from stages.relation.predict import DeepWordMethod
+def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
+    """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
+    model that ships (``stages.export.runtime``); needs the export stage's output."""
 
-    return DeepWordMethod.from_dirs(ctx.inputs["relation"], ctx.inputs["priors"], ctx.dataset.root)
+    def factory(ctx: EvalContext):
+        if "export" not in ctx.inputs:
+            return None
+        from stages.export.runtime import deepword_method
+
+        return deepword_method(name, ctx.inputs["export"], ctx.dataset.root)
+
+    return factory
 
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule),
     "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule),
     "prior": lambda ctx: fit_prior(ctx.train, ctx.priors),
-    "deepword": deepword,
+    "deepword": deepword_onnx("deepword"),
+    "deepword_int8": deepword_onnx("deepword_int8"),
 }
 
 
@@ -79,7 +84,14 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
 
 
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
-    """The detector's WORD-format predictions of the test split (``predictions_test.jsonl``)."""
+    """Detections of the test split: from the exported detector in onnxruntime when the export stage is
+    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``."""
+    if "export" in ctx.inputs:
+        from stages.export.runtime import OnnxDetector
+        from stages.word_format import load_image
+
+        detector = OnnxDetector(ctx.inputs["export"])
+        return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
     if "detector" not in ctx.inputs:
         return None
     path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS

@@ -104,21 +104,3 @@ def prediction_record(rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarr
         pairs.append((int(ids[a]), int(ids[b])) if rear_first else (int(ids[b]), int(ids[a])))
     return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs))
 
-
-class DeepWordMethod:
-    """The evaluate stage's ``deepword`` row: ``predict(record)`` reads the record's image from the
-    dataset root and returns the record with DeepWORD's relations and couples."""
-
-    name = "deepword"
-
-    def __init__(self, predictor: RelationPredictor, dataset_root: str | os.PathLike):
-        self.predictor, self.root = predictor, Path(dataset_root)
-
-    @classmethod
-    def from_dirs(cls, relation_dir, priors_dir, dataset_root) -> DeepWordMethod:
-        return cls(RelationPredictor.from_dirs(relation_dir, priors_dir), dataset_root)
-
-    def predict(self, rec: Record) -> Record:
-        from stages.word_format import load_image
-
-        return self.predictor.predict(rec, load_image(self.root, rec))

@@ -1,0 +1,47 @@
+"""Relation decisions from ONNX scores, in numpy: the same rules as ``stages.relation.decode`` (which works
+on torch tensors for training), for runtimes without torch. ``tests/stages/export`` checks that both give
+identical decisions on random scores, so the two cannot drift apart.
+
+Conventions as there: (B, N, N) scores, wheels as rows and vehicles as columns for ownership; a decided
+couple matrix is symmetric.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stages.word_format import VEHICLE, WHEEL
+
+_BELOW_ANY_COSINE = -2.0  # masked entries: cosines are >= -1
+
+
+def type_masks(classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B, N) classes -> wheel-row/vehicle-column pairs (B, N, N) and wheel-wheel pairs without self."""
+    is_wheel, is_vehicle = classes == WHEEL, classes == VEHICLE
+    wv = is_wheel[:, :, None] & is_vehicle[:, None, :]
+    ww = is_wheel[:, :, None] & is_wheel[:, None, :] & ~np.eye(classes.shape[1], dtype=bool)
+    return wv, ww
+
+
+def _is_row_best(masked: np.ndarray) -> np.ndarray:
+    """One True per row, at the row's argmax (first one on ties, as torch.argmax on CPU)."""
+    best = masked.argmax(axis=-1)[..., None]
+    return np.arange(masked.shape[-1]) == best
+
+
+def decode_owners(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, threshold: float,
+                  one_owner: bool) -> np.ndarray:
+    """Every candidate wheel-vehicle pair above threshold, or (one_owner) each wheel's best vehicle if
+    its score is above threshold."""
+    wv, _ = type_masks(classes)
+    masked = np.where(wv & cand.astype(bool), scores, _BELOW_ANY_COSINE)
+    above = masked > threshold
+    return above & _is_row_best(masked) if one_owner else above
+
+
+def decode_couples(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, threshold: float) -> np.ndarray:
+    """Two wheels form a couple when each is the other's best-scoring wheel and the score is above threshold."""
+    _, ww = type_masks(classes)
+    masked = np.where(ww & cand.astype(bool), scores, _BELOW_ANY_COSINE)
+    best = _is_row_best(masked)
+    return best & best.transpose(0, 2, 1) & (masked > threshold)

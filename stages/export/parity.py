@@ -1,0 +1,113 @@
+"""Parity of an exported model with the PyTorch network it came from, on the same inputs.
+
+Two figures per model: the largest absolute difference of any output that matters, and the share (in
+percent) of decisions that agree. For the relation network, "what matters" is the score of every
+candidate pair (valid nodes; padding is multiplied away in both) and the front probability of every
+valid wheel, and a decision is "score > threshold" of a candidate pair. For the detector it is the three
+heads and, per top-K slot, whether a detection passes the score threshold and with which class.
+An export that misses the tolerances must not ship: ``ParityReport.check`` raises.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.export.runtime import DETECTOR_INPUT, RELATION_OUTPUTS, pad_graphs
+
+
+class ParityError(RuntimeError):
+    """An exported model disagrees with PyTorch beyond the configured tolerance."""
+
+
+@dataclass
+class ParityReport:
+    max_abs_diff: float = 0.0
+    agreeing: int = 0
+    decisions: int = 0
+
+    @property
+    def decision_agreement(self) -> float:
+        """Percent of decisions identical in both; 100 when there was nothing to decide."""
+        return 100.0 * self.agreeing / self.decisions if self.decisions else 100.0
+
+    def add(self, diff: float, agreeing: int, decisions: int) -> None:
+        self.max_abs_diff = max(self.max_abs_diff, float(diff))
+        self.agreeing += int(agreeing)
+        self.decisions += int(decisions)
+
+    def check(self, what: str, max_abs_diff: float, min_agreement: float) -> None:
+        if not self.max_abs_diff <= max_abs_diff or self.decision_agreement < min_agreement:
+            raise ParityError(
+                f"{what}: onnxruntime differs from PyTorch: max |diff| {self.max_abs_diff:.3g} (allowed "
+                f"{max_abs_diff:g}), decisions agree on {self.decision_agreement:.3f} % of {self.decisions} "
+                f"(required {min_agreement:g} %)")
+
+    def metrics(self, prefix: str) -> dict[str, float]:
+        return {f"{prefix}.parity_max_abs_diff": self.max_abs_diff,
+                f"{prefix}.parity_decision_agreement": self.decision_agreement}
+
+
+def compare_relation(report: ParityReport, ref: Sequence[np.ndarray], got: Sequence[np.ndarray],
+                     cand: np.ndarray, classes: np.ndarray, threshold: float) -> None:
+    """Add one batch: ``ref``/``got`` are (owner, couple, front) of PyTorch and onnxruntime."""
+    pairs = cand > 0
+    valid = classes >= 0
+    diff = 0.0
+    agreeing = decisions = 0
+    for r, g in zip(ref[:2], got[:2], strict=True):  # owner, couple scores on candidate pairs
+        if pairs.any():
+            diff = max(diff, float(np.abs(r[pairs] - g[pairs]).max()))
+        agreeing += int(((r[pairs] > threshold) == (g[pairs] > threshold)).sum())
+        decisions += int(pairs.sum())
+    if valid.any():
+        diff = max(diff, float(np.abs(ref[2][valid] - got[2][valid]).max()))
+    report.add(diff, agreeing, decisions)
+
+
+def relation_parity(net, session, graphs: Sequence, input_size: int, threshold: float, n: int | None,
+                    batch_size: int = 16) -> ParityReport:
+    """Run ``graphs`` through the torch ``RelationGraph``-equivalent network and the ONNX session, padded
+    to ``n`` objects (None: each batch's largest graph)."""
+    import torch
+
+    from stages.export.onnx_export import RelationGraph
+
+    graph_net = RelationGraph(net).eval()
+    report = ParityReport()
+    for start in range(0, len(graphs), batch_size):
+        feed, classes = pad_graphs(graphs[start:start + batch_size], input_size, n)
+        with torch.no_grad():
+            ref = [t.numpy() for t in graph_net(*(torch.from_numpy(feed[k]) for k in feed))]
+        got = session.run(list(RELATION_OUTPUTS), feed)
+        compare_relation(report, ref, got, feed["cand"], classes, threshold)
+    return report
+
+
+def compare_detector(report: ParityReport, ref: Sequence[np.ndarray], got: Sequence[np.ndarray],
+                     score_threshold: float) -> None:
+    """Add one batch: (heatmap, wh, reg, detections) of PyTorch and onnxruntime."""
+    diff = max(float(np.abs(r - g).max()) for r, g in zip(ref[:3], got[:3], strict=True))
+    det_r, det_g = ref[3], got[3]
+    kept_r, kept_g = det_r[..., 4] >= score_threshold, det_g[..., 4] >= score_threshold
+    same = (kept_r == kept_g) & (~kept_r | (det_r[..., 5] == det_g[..., 5]))
+    report.add(diff, int(same.sum()), same.size)
+
+
+def detector_parity(net, session, images: np.ndarray, k: int, score_threshold: float,
+                    batch_size: int = 8) -> ParityReport:
+    """``images`` (I, 3, H, W) network inputs through the torch ``DetectorGraph`` and the ONNX session."""
+    import torch
+
+    from stages.export.onnx_export import DetectorGraph
+
+    graph_net = DetectorGraph(net, k).eval()
+    report = ParityReport()
+    for start in range(0, len(images), batch_size):
+        x = np.ascontiguousarray(images[start:start + batch_size])
+        with torch.no_grad():
+            ref = [t.numpy() for t in graph_net(torch.from_numpy(x))]
+        compare_detector(report, ref, session.run(None, {DETECTOR_INPUT: x}), score_threshold)
+    return report

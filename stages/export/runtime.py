@@ -1,0 +1,172 @@
+"""The shipped models in onnxruntime, without torch: what the evaluate stage's DeepWORD and detected-box
+rows and ``deepword infer`` run.
+
+An export stage directory (the *bundle*) holds everything inference needs, so nothing upstream must be
+present at inference time::
+
+    export.json            input and decoding settings, detector preprocessing, file names, metrics
+    priors.json            the Gaussian-mixture priors (adjacency of the graph)
+    relation_static.onnx   objects padded to max_objects (static N; batch dynamic): for embedded runtimes
+    relation_dynamic.onnx  batch and object count dynamic
+    relation_int8.onnx     INT8 (onnxruntime dynamic quantisation of relation_dynamic.onnx)
+    detector.onnx          CenterNet + decoding, dynamic batch: images -> (B, K, 6) detections
+
+Evaluation and inference run the dynamic-N models, so every image is run at its real object count (the
+static model gives the same scores within the parity tolerance; both are checked against PyTorch).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from stages.export.decode import decode_couples, decode_owners
+from stages.word_format import Record
+
+BUNDLE_FILE = "export.json"
+PRIORS_FILE = "priors.json"
+RELATION_FILES = {"static": "relation_static.onnx", "dynamic": "relation_dynamic.onnx", "int8": "relation_int8.onnx"}
+DETECTOR_FILE = "detector.onnx"
+RELATION_INPUTS = ("crops", "coords", "adj", "cand")
+RELATION_OUTPUTS = ("owner", "couple", "front")
+DETECTOR_INPUT = "images"
+DETECTOR_OUTPUTS = ("heatmap", "wh", "reg", "detections")
+# Which relation model a method name runs (evaluate rows and ``deepword infer --method``).
+METHOD_VARIANTS = {"deepword": "dynamic", "deepword_int8": "int8"}
+
+
+def ort_session(path: str | os.PathLike, threads: int):
+    """An onnxruntime CPU session with a fixed intra-op thread count (one inter-op thread: sequential
+    graphs), so latencies are comparable and recorded."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = int(threads)
+    options.inter_op_num_threads = 1
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def read_bundle(bundle_dir: str | os.PathLike) -> dict:
+    """``export.json`` of an export stage directory, with a clear error when it is not one."""
+    path = Path(bundle_dir) / BUNDLE_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: not found; {bundle_dir} is not an export stage output")
+    return json.loads(path.read_text())
+
+
+# --- relation ---------------------------------------------------------------------------------------
+
+def pad_graphs(graphs: Sequence, size: int, n: int | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Graphs (``stages.relation.inputs.ImageGraph``, crops ``size`` x ``size``) -> the network's feed,
+    padded to ``n`` objects (default: the largest graph), and the (B, n) classes (-1 for padding)."""
+    n = max([len(g.classes) for g in graphs] + [1]) if n is None else n
+    b = len(graphs)
+    feed = {"crops": np.zeros((b, n, 3, size, size), np.uint8), "coords": np.zeros((b, n, 4), np.float32),
+            "adj": np.zeros((b, n, n), np.float32), "cand": np.zeros((b, n, n), np.float32)}
+    classes = np.full((b, n), -1, np.int64)
+    for i, g in enumerate(graphs):
+        k = len(g.classes)
+        if k > n:
+            raise ValueError(f"a graph has {k} objects, more than the model's {n}")
+        feed["crops"][i, :k], feed["coords"][i, :k] = g.crops, g.coords
+        feed["adj"][i, :k, :k], feed["cand"][i, :k, :k] = g.adj, g.cand
+        classes[i, :k] = g.classes
+    return feed, classes
+
+
+class OnnxRelation:
+    """DeepWORD relations with an exported relation model: graph building as in training
+    (``stages.relation.inputs.build_graph``), scores from onnxruntime, decisions as in
+    ``stages.relation.decode`` and records as in ``stages.relation.predict``."""
+
+    def __init__(self, bundle_dir: str | os.PathLike, variant: str = "dynamic", threads: int = 1):
+        from stages.priors.mixture import load_priors
+        from stages.relation.inputs import InputConfig
+
+        if variant not in RELATION_FILES:
+            raise ValueError(f"unknown relation model variant {variant!r}; have {sorted(RELATION_FILES)}")
+        bundle_dir = Path(bundle_dir)
+        meta = read_bundle(bundle_dir)["relation"]
+        self.variant = variant
+        self.inputs = InputConfig(**meta["inputs"])
+        self.threshold = float(meta["decode"]["threshold"])
+        self.one_owner = bool(meta["decode"]["one_owner"])
+        self.has_roles = bool(meta["has_roles"])
+        self.priors = load_priors(bundle_dir / PRIORS_FILE)
+        self.session = ort_session(bundle_dir / RELATION_FILES[variant], threads)
+        self.static_n = self.inputs.max_objects if variant == "static" else None
+
+    def graph(self, rec: Record, rgb: np.ndarray):
+        from stages.relation.inputs import build_graph
+
+        return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
+
+    def scores(self, graphs: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(owner, couple, front, classes, cand) for a batch of graphs."""
+        feed, classes = pad_graphs(graphs, self.inputs.input_size, self.static_n)
+        owner, couple, front = self.session.run(list(RELATION_OUTPUTS), feed)
+        return owner, couple, front, classes, feed["cand"]
+
+    def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
+                     batch_size: int = 16) -> list[Record]:
+        out = []
+        for start in range(0, len(records), batch_size):
+            chunk = records[start:start + batch_size]
+            out += self.predict_graphs(chunk, [self.graph(r, load_rgb(r)) for r in chunk])
+        return out
+
+    def predict_graphs(self, records: Sequence[Record], graphs: Sequence) -> list[Record]:
+        """Records with decided relations, from their already built graphs (one batch)."""
+        from stages.relation.predict import prediction_record
+
+        owner, couple, front, classes, cand = self.scores(graphs)
+        pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner)
+        pred_couple = decode_couples(couple, classes, cand, self.threshold)
+        return [prediction_record(rec, pred_owner[i], pred_couple[i], front[i], self.has_roles)
+                for i, rec in enumerate(records)]
+
+
+class DeepwordMethod:
+    """An evaluate row / inference method: ``predict(record) -> Record`` for records of one dataset root."""
+
+    def __init__(self, name: str, relation: OnnxRelation, root: str | os.PathLike):
+        from stages.word_format import load_image
+
+        self.name, self.relation = name, relation
+        self._load = lambda rec: load_image(root, rec)
+
+    def predict(self, rec: Record) -> Record:
+        return self.relation.predict_many([rec], self._load)[0]
+
+
+def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.PathLike, threads: int = 1):
+    return DeepwordMethod(name, OnnxRelation(bundle_dir, METHOD_VARIANTS[name], threads), root)
+
+
+# --- detector ---------------------------------------------------------------------------------------
+
+class OnnxDetector:
+    """The exported CenterNet: letterbox + normalise (``stages.detector.letterbox``), onnxruntime, and the
+    detector stage's own detections -> WORD record conversion."""
+
+    def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
+        bundle_dir = Path(bundle_dir)
+        cfg = read_bundle(bundle_dir)["detector"]
+        self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
+        self.score_threshold = float(cfg["score_threshold"])
+        self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)
+
+    def detect(self, rgb: np.ndarray, source: Record) -> Record:
+        """``source``'s image (RGB uint8) -> a record with its detected boxes (real scores, no relations)."""
+        from stages.detector.letterbox import preprocess
+        from stages.detector.predict import detections_to_record
+
+        x, box = preprocess(rgb, self.input_width, self.input_height)
+        (detections,) = self.session.run(["detections"], {DETECTOR_INPUT: x[None]})
+        return detections_to_record(detections[0], source, box, self.score_threshold)

@@ -1,0 +1,228 @@
+"""The `export` stage: the trained relation network and detector to ONNX, checked, quantised and timed.
+
+1. export: relation (static N = max_objects; dynamic N), detector (dynamic batch), ``onnx.checker``;
+2. parity against PyTorch on the test split (relation: every test image, both variants; detector:
+   ``export.parity.detector_images`` images); a miss of the tolerances fails the stage;
+3. INT8: onnxruntime dynamic quantisation of the dynamic relation model (``export.int8.op_types``), and
+   its wheel_acc change against FP32 on the easy/hard/mixed test subsets (annotated boxes);
+4. latency (``stages.export.latency``): relation at batch 1 and 10 on test images padded to max_objects,
+   the dynamic model at their real object counts, INT8, PyTorch eager in the same process, detector;
+5. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
+
+The output directory is the self-contained bundle ``stages.export.runtime`` documents; reports go to
+``artifacts/`` (``latency.md``, ``parity.json``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from stages.export.runtime import (
+    BUNDLE_FILE,
+    DETECTOR_FILE,
+    DETECTOR_INPUT,
+    PRIORS_FILE,
+    RELATION_FILES,
+    OnnxRelation,
+    ort_session,
+    pad_graphs,
+)
+from stages.word_format import SUBSETS, load_image, open_dataset
+
+PAPER_MS_PER_IMG_B1 = 3.2     # DeepWORD on an embedded DSP (paper, Tables 1-2)
+PAPER_MS_PER_10IMG_B10 = 13.1
+
+
+def _limit(records: list, limit) -> list:
+    return records if limit is None else records[: int(limit)]
+
+
+def size_mb(path: Path) -> float:
+    return path.stat().st_size / 2**20
+
+
+def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
+    """Dynamic INT8 quantisation (weights int8 offline, activations per call). Only MatMul/Gemm by
+    default: onnxruntime's ConvInteger kernels are several times slower than its float convolutions,
+    while the fully connected layers hold most of the weights."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, op_types_to_quantize=list(op_types))
+    return dst
+
+
+def write_bundle(out_dir: Path, meta: dict, det_cfg: dict, extra: dict) -> None:
+    bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
+                           "model": meta["model"]},
+              "detector": {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
+                                                   "score_threshold", "class_names")},
+              "files": {**RELATION_FILES, "detector": DETECTOR_FILE, "priors": PRIORS_FILE}, **extra}
+    (out_dir / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
+
+
+def wheel_acc_by_subset(ds, preds: dict, min_box_px: float) -> dict[str, float]:
+    from stages.evaluate.metrics import score_records
+
+    return {s: score_records(ds.subset(s), preds, min_box_px).percentages()["wheel_acc"] for s in SUBSETS}
+
+
+def int8_accuracy_change(ds, out_dir: Path, records: list, graphs: list, min_box_px: float) -> dict[str, float]:
+    """wheel_acc (percent) of the FP32 and INT8 models on the test subsets and the change in points."""
+    from stages.evaluate.methods import boxes_only
+
+    inputs = [boxes_only(r) for r in records]
+    acc = {}
+    for variant in ("dynamic", "int8"):
+        relation = OnnxRelation(out_dir, variant)
+        # one image per call, as on the device: dynamic quantisation scales activations per call, so
+        # batching images (and their padding) together would change INT8 results
+        preds = [relation.predict_graphs([rec], [g])[0] for rec, g in zip(inputs, graphs, strict=True)]
+        acc[variant] = wheel_acc_by_subset(ds, {p.image: p for p in preds}, min_box_px)
+    metrics = {}
+    for s in SUBSETS:
+        metrics[f"export.relation.fp32.{s}.wheel_acc"] = acc["dynamic"][s]
+        metrics[f"export.relation.int8.{s}.wheel_acc"] = acc["int8"][s]
+        metrics[f"export.relation.int8.{s}.wheel_acc_change"] = acc["int8"][s] - acc["dynamic"][s]
+    return metrics
+
+
+def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: int, lat) -> dict[str, float]:
+    from stages.export.latency import batches, onnx_ms, torch_ms
+    from stages.export.onnx_export import RelationGraph
+
+    threads, runs, warmup = int(lat.threads), int(lat.runs), int(lat.warmup)
+    padded = [pad_graphs([g], size, max_objects)[0] for g in graphs]
+    real = [pad_graphs([g], size)[0] for g in graphs]
+    static = ort_session(out_dir / RELATION_FILES["static"], threads)
+    b1 = onnx_ms(static, padded, runs, warmup)
+    b10 = onnx_ms(static, batches(padded, 10), runs, warmup)
+    eager = torch_ms(RelationGraph(net).eval(), padded, runs, warmup, threads)
+    dynamic = onnx_ms(ort_session(out_dir / RELATION_FILES["dynamic"], threads), real, runs, warmup)
+    int8 = onnx_ms(ort_session(out_dir / RELATION_FILES["int8"], threads), real, runs, warmup)
+    return {"export.relation.ms_per_img_b1": b1, "export.relation.ms_per_10img_b10": b10,
+            "export.relation.torch_ms_per_img_b1": eager, "export.relation.speedup_vs_torch": eager / b1,
+            "export.relation.dynamic_ms_per_img_b1": dynamic, "export.relation.int8_ms_per_img_b1": int8,
+            "export.threads": float(threads), "export.latency_runs": float(runs)}
+
+
+def detector_latency(det_net, out_dir: Path, images: np.ndarray, lat) -> dict[str, float]:
+    from stages.export.latency import batches, onnx_ms, torch_ms
+
+    threads, runs, warmup = int(lat.threads), int(lat.runs), int(lat.warmup)
+    feeds = [{DETECTOR_INPUT: images[i:i + 1]} for i in range(len(images))]
+    session = ort_session(out_dir / DETECTOR_FILE, threads)
+    return {"export.detector.ms_per_img_b1": onnx_ms(session, feeds, runs, warmup),
+            "export.detector.ms_per_10img_b10": onnx_ms(session, batches(feeds, 10), runs, warmup),
+            "export.detector.torch_ms_per_img_b1": torch_ms(det_net, feeds, runs, warmup, threads)}
+
+
+def latency_table(m: dict[str, float]) -> str:
+    """Markdown: onnxruntime, PyTorch and the paper's embedded figures side by side."""
+    threads = int(m["export.threads"])
+    rows = [
+        "| model | ms/img (batch 1) | ms/10 imgs (batch 10) | params | size MB |",
+        "|---|---|---|---|---|",
+        f"| relation, onnxruntime, {threads} threads, padded to max_objects | {m['export.relation.ms_per_img_b1']:.2f} "
+        f"| {m['export.relation.ms_per_10img_b10']:.1f} | {m['export.relation.params']:.0f} "
+        f"| {m['export.relation.size_mb']:.2f} |",
+        f"| relation, onnxruntime, real object counts | {m['export.relation.dynamic_ms_per_img_b1']:.2f} | | | |",
+        f"| relation INT8, onnxruntime, real object counts | {m['export.relation.int8_ms_per_img_b1']:.2f} | | "
+        f"| {m['export.relation.int8.size_mb']:.2f} |",
+        f"| relation, PyTorch eager, {threads} threads | {m['export.relation.torch_ms_per_img_b1']:.2f} | | | |",
+        f"| paper (embedded DSP) | {PAPER_MS_PER_IMG_B1} | {PAPER_MS_PER_10IMG_B10} | | |",
+        f"| detector, onnxruntime | {m['export.detector.ms_per_img_b1']:.2f} | {m['export.detector.ms_per_10img_b10']:.1f} "
+        f"| {m['export.detector.params']:.0f} | {m['export.detector.size_mb']:.2f} |",
+        f"| detector, PyTorch eager | {m['export.detector.torch_ms_per_img_b1']:.2f} | | | |",
+    ]
+    ratio = m["export.relation.torch_ms_per_img_b1"] / m["export.relation.ms_per_img_b1"]
+    return "\n".join(rows) + f"\n\nonnxruntime is {ratio:.2f}x faster than PyTorch eager at batch 1 (same process).\n"
+
+
+def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
+    import torch
+
+    from pipeline.tracking import stage_run_info
+    from stages.detector.letterbox import preprocess
+    from stages.detector.model import load_detector
+    from stages.export.onnx_export import export_detector, export_relation
+    from stages.export.parity import detector_parity, relation_parity
+    from stages.priors.mixture import load_priors
+    from stages.relation.inputs import InputConfig, build_graph
+    from stages.relation.model import count_parameters
+    from stages.relation.stage import load_network
+
+    ex, out_dir = cfg.export, Path(out_dir)
+    torch.manual_seed(int(cfg.seed))
+    ds = open_dataset(inputs["data"])
+    net, meta = load_network(inputs["relation"])
+    det_net, det_cfg = load_detector(inputs["detector"])
+    in_cfg = InputConfig(**meta["inputs"])
+    shutil.copy(Path(inputs["priors"]) / PRIORS_FILE, out_dir / PRIORS_FILE)
+    priors = load_priors(out_dir / PRIORS_FILE)
+
+    export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
+    export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
+    quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
+    export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
+                    det_cfg["max_detections"])
+    write_bundle(out_dir, meta, det_cfg, {})
+
+    test = _limit(ds.subset("test"), ex.parity.images)
+    if not test:
+        raise ValueError("export: the test split is empty; parity and latency need test images")
+    graphs = [build_graph(r, load_image(ds.root, r), in_cfg, priors.wheel_vehicle, priors.wheel_wheel) for r in test]
+    threads, threshold = int(ex.latency.threads), float(meta["decode"]["threshold"])
+    tol, agree = float(ex.parity.max_abs_diff), float(ex.parity.min_agreement)
+    reports = {
+        "static": relation_parity(net, ort_session(out_dir / RELATION_FILES["static"], threads), graphs,
+                                  in_cfg.input_size, threshold, in_cfg.max_objects),
+        "dynamic": relation_parity(net, ort_session(out_dir / RELATION_FILES["dynamic"], threads), graphs,
+                                   in_cfg.input_size, threshold, None),
+        "int8": relation_parity(net, ort_session(out_dir / RELATION_FILES["int8"], threads), graphs,
+                                in_cfg.input_size, threshold, None),
+    }
+    det_images = np.stack([preprocess(load_image(ds.root, r), det_cfg["input_width"], det_cfg["input_height"])[0]
+                           for r in _limit(test, ex.parity.detector_images)])
+    reports["detector"] = detector_parity(det_net, ort_session(out_dir / DETECTOR_FILE, threads), det_images,
+                                          det_cfg["max_detections"], det_cfg["score_threshold"])
+    for name in ("static", "dynamic", "detector"):
+        reports[name].check(f"export: {name} model", tol, agree)
+
+    metrics = {
+        "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
+        "export.relation.parity_decision_agreement": min(reports[v].decision_agreement for v in ("static", "dynamic")),
+        "export.relation.parity_pairs": float(reports["static"].decisions),
+        **reports["static"].metrics("export.relation.static"), **reports["dynamic"].metrics("export.relation.dynamic"),
+        **reports["int8"].metrics("export.relation.int8"), **reports["detector"].metrics("export.detector"),
+        "export.relation.params": float(count_parameters(net)),
+        "export.relation.size_mb": size_mb(out_dir / RELATION_FILES["static"]),
+        "export.relation.int8.size_mb": size_mb(out_dir / RELATION_FILES["int8"]),
+        "export.detector.params": float(sum(p.numel() for p in det_net.parameters())),
+        "export.detector.size_mb": size_mb(out_dir / DETECTOR_FILE),
+    }
+    metrics.update(int8_accuracy_change(ds, out_dir, test, graphs, float(ex.min_box_px)))
+    lat_graphs = graphs[: int(ex.latency.images)]
+    metrics.update(relation_latency(net, out_dir, lat_graphs, in_cfg.input_size, in_cfg.max_objects, ex.latency))
+    metrics.update(detector_latency(det_net, out_dir, det_images[: int(ex.latency.images)], ex.latency))
+
+    artifacts = out_dir / "artifacts"
+    artifacts.mkdir(exist_ok=True)
+    (artifacts / "latency.md").write_text("# Latency (export stage)\n\n" + latency_table(metrics))
+    (artifacts / "parity.json").write_text(json.dumps(
+        {name: {"max_abs_diff": r.max_abs_diff, "decision_agreement": r.decision_agreement, "decisions": r.decisions}
+         for name, r in reports.items()}, indent=1))
+    registered = {}
+    tracking = stage_run_info()
+    if tracking is not None and bool(ex.register):
+        from stages.export.registry import register_models
+
+        per_model = {m: {k: v for k, v in metrics.items() if k.startswith(f"export.{m}.")} for m in ("relation", "detector")}
+        per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
+        registered = register_models(tracking, {"relation": out_dir / RELATION_FILES["static"],
+                                                "detector": out_dir / DETECTOR_FILE}, per_model)
+    write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads})
+    return metrics

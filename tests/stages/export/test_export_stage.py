@@ -1,0 +1,25 @@
+"""The export stage on a tiny dataset with randomly initialised networks: files, checker, parity, metrics."""
+
+import json
+
+import onnx
+import pytest
+
+from stages.export.runtime import BUNDLE_FILE, DETECTOR_FILE, RELATION_FILES
+
+
+def test_stage_writes_checked_models_and_metrics(exported):
+    out, metrics = exported
+    for name in (*RELATION_FILES.values(), DETECTOR_FILE):
+        onnx.checker.check_model(onnx.load(str(out / name)), full_check=True)
+    assert metrics["export.relation.parity_max_abs_diff"] <= 1e-4
+    assert metrics["export.relation.parity_decision_agreement"] >= 99.9
+    assert metrics["export.detector.parity_max_abs_diff"] <= 1e-4
+    assert metrics["export.relation.parity_pairs"] > 0
+    for key in ("ms_per_img_b1", "ms_per_10img_b10", "params", "size_mb"):
+        for model in ("relation", "detector"):
+            assert metrics[f"export.{model}.{key}"] > 0
+    assert metrics["export.relation.torch_ms_per_img_b1"] > 0
+    bundle = json.loads((out / BUNDLE_FILE).read_text())
+    assert bundle["metrics"] == pytest.approx(metrics)
+    assert (out / "artifacts" / "latency.md").read_text().count("|") > 20
