@@ -24,15 +24,16 @@ NO_ID = -1
 TEX_RES = 0.05     # ground texture: metres per texel
 TEX_HALF = 32.0    # the texture covers +-32 m around the ego
 SKYLINE_R = 70.0   # distance of the backdrop (buildings, trees) around the scene
-MARGIN_PX = 2
+MARGIN_PX = 3
+NOISE_PAD = 64
 
-# the 12 edges of the unit cube [-1, 1]^3, 17 samples each: a box's image lies inside their images' bbox
-_t = np.linspace(-1.0, 1.0, 17)
+# the 12 edges of the unit cube [-1, 1]^3, 11 samples each: a box's image lies inside their images' bbox
+_t = np.linspace(-1.0, 1.0, 11)
 _EDGES = []
 for _a in range(3):
     for _s1 in (-1.0, 1.0):
         for _s2 in (-1.0, 1.0):
-            _p = np.zeros((17, 3))
+            _p = np.zeros((11, 3))
             _p[:, _a] = _t
             _b, _c = [i for i in range(3) if i != _a]
             _p[:, _b], _p[:, _c] = _s1, _s2
@@ -48,14 +49,17 @@ class CameraTables:
     rays: np.ndarray          # (H, W, 3) float32 unit directions, ego frame
     valid: np.ndarray         # (H, W) bool: inside the lens' field of view
     ground_map: tuple         # cv2.remap maps (float32) into the ground texture
-    ground_fog: np.ndarray    # (H, W, 1) float32 haze blend for ground pixels
-    ground_mask: np.ndarray   # (H, W) bool: ray hits the ground (and the FOV)
+    fog: tuple                # cv2.blendLinear weights (ground, haze), float32 (H, W) each
+    haze: np.ndarray          # (H, W, 3) uint8 haze colour
+    outside_idx: np.ndarray   # flat indices of pixels outside the lens' field of view (black)
     sky_idx: np.ndarray       # flat indices of sky pixels
     sky_bin: np.ndarray       # azimuth bin (5 deg) of each sky pixel
     sky_height: np.ndarray    # height at which each sky ray crosses the backdrop radius
     sky_rgb: np.ndarray       # (n_sky, 3) float32 sky gradient
     ego_t: np.ndarray         # (H, W) float32 depth of the ego's own body (inf elsewhere)
     ego_rgb: np.ndarray       # (H, W, 3) uint8 the ego's body where ego_t is finite
+    ego_mask: np.ndarray | None = None  # (H, W) uint8 where the ego's body is
+    base_ids: np.ndarray | None = None  # (H, W) int16 id buffer before any vehicle: ego or nothing
 
 
 def build_tables(cam: FisheyeCamera, ego: Vehicle) -> CameraTables:
@@ -71,7 +75,7 @@ def build_tables(cam: FisheyeCamera, ego: Vehicle) -> CameraTables:
     map_x = np.where(ground, (gx + TEX_HALF) / TEX_RES, -10).astype(np.float32)
     map_y = np.where(ground, (TEX_HALF - gy) / TEX_RES, -10).astype(np.float32)
     dist = np.where(ground, np.hypot(gx, gy), 0)
-    fog = (1 - np.exp(-dist / 90.0)).astype(np.float32)[..., None]
+    fog = (1 - np.exp(-dist / 90.0)).astype(np.float32)
     sky = valid & ~ground
     idx = np.flatnonzero(sky)
     d = rays.reshape(-1, 3)[idx]
@@ -80,8 +84,9 @@ def build_tables(cam: FisheyeCamera, ego: Vehicle) -> CameraTables:
     height = oz + SKYLINE_R * d[:, 2] / horiz
     elev = np.clip(d[:, 2], 0, 1)[:, None]
     sky_rgb = ((1 - elev) * np.array([0.78, 0.82, 0.86]) + elev * np.array([0.45, 0.62, 0.85])).astype(np.float32)
-    tables = CameraTables(cam=cam, rays=rays, valid=valid, ground_map=(map_x, map_y), ground_fog=fog,
-                          ground_mask=ground, sky_idx=idx, sky_bin=(az // 5).astype(np.int32),
+    haze = np.broadcast_to(np.array([184, 191, 199], np.uint8), (h, w, 3)).copy()
+    tables = CameraTables(cam=cam, rays=rays, valid=valid, ground_map=(map_x, map_y), fog=(1 - fog, fog),
+                          haze=haze, outside_idx=np.flatnonzero(~valid), sky_idx=idx, sky_bin=(az // 5).astype(np.int32),
                           sky_height=height.astype(np.float32), sky_rgb=sky_rgb,
                           ego_t=np.full((h, w), np.inf, np.float32), ego_rgb=np.zeros((h, w, 3), np.uint8))
     # the ego's own body, seen at the image borders as on a real rig
@@ -89,6 +94,8 @@ def build_tables(cam: FisheyeCamera, ego: Vehicle) -> CameraTables:
     own = np.zeros(4, np.int64)
     sun = np.array([0.3, 0.2, 0.93])
     _render_vehicle(tables, ego, EGO_ID, None, tables.ego_t, ids, tables.ego_rgb, sun / np.linalg.norm(sun), own)
+    tables.ego_mask = np.isfinite(tables.ego_t).astype(np.uint8)
+    tables.base_ids = ids
     return tables
 
 
@@ -110,15 +117,15 @@ def box_regions(cam: FisheyeCamera, centres: np.ndarray, rots: np.ndarray, halve
     if b == 0:
         return np.zeros((0, 4), np.int64)
     local = CUBE_EDGE_SAMPLES[None] * halves[:, None, :]                 # (B, S, 3)
-    pts = np.einsum("bij,bsj->bsi", rots, local) + centres[:, None, :]
+    pts = local @ rots.transpose(0, 2, 1) + centres[:, None, :]
     uv = cam.project_cam(cam.to_cam(pts.reshape(-1, 3))).reshape(b, -1, 2)
     lo, hi = uv.min(axis=1) - MARGIN_PX, uv.max(axis=1) + MARGIN_PX
     crops = np.stack([np.floor(lo[:, 0]), np.floor(lo[:, 1]), np.ceil(hi[:, 0]) + 1, np.ceil(hi[:, 1]) + 1], 1)
     crops = np.clip(crops, 0, [cam.width, cam.height, cam.width, cam.height]).astype(np.int64)
     # the projection is continuous except straight behind the lens: a box containing the camera or the
     # ray straight back has an image the edge samples do not bound, so it gets the whole image
-    o = np.einsum("bji,bj->bi", rots, cam.position[None] - centres)      # camera in each box's frame
-    d = np.einsum("bji,j->bi", rots, -cam.forward)
+    o = ((cam.position[None] - centres)[:, None, :] @ rots)[:, 0]         # camera in each box's frame
+    d = -cam.forward @ rots
     t_near, t_far = _slab(o, d, halves)
     inside = np.all(np.abs(o) <= halves, axis=1)
     behind = inside | ((t_near <= t_far) & (t_far > 0))
@@ -137,32 +144,42 @@ def _slab(o: np.ndarray, d: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, n
 # --- primitives ---------------------------------------------------------------------------------------
 
 def _intersect_box(o, d, half):
-    """Rays o + t d (local frame, d (N, 3)) against a box centred at the origin: t (inf = miss), face axis, sign."""
+    """Rays o + t d (local frame; d as 3 component rows (3, N)) against a box centred at the origin:
+    t (inf = miss) and the per-axis entry distances (to tell which face was hit)."""
+    near = []
+    t_far = None
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t1 = (-half - o) * inv
-        t2 = (half - o) * inv
-    tmin = np.minimum(t1, t2)
-    tn = tmin.max(axis=1)
-    tf = np.maximum(t1, t2).min(axis=1)
-    hit = (tn <= tf) & (tn > 1e-3)
-    return np.where(hit, tn, np.inf).astype(np.float32), tmin
+        for a in range(3):
+            inv = 1.0 / d[a]
+            t1 = (-half[a] - o[a]) * inv
+            t2 = (half[a] - o[a]) * inv
+            near.append(np.minimum(t1, t2))
+            far = np.maximum(t1, t2)
+            t_far = far if t_far is None else np.minimum(t_far, far)
+    tn = np.maximum(np.maximum(near[0], near[1]), near[2])
+    hit = (tn <= t_far) & (tn > 1e-3)
+    return np.where(hit, tn, np.inf).astype(np.float32), near
+
+
+def _face_axis(near, win):
+    nx, ny, nz = near[0][win], near[1][win], near[2][win]
+    return np.where(nx >= ny, np.where(nx >= nz, 0, 2), np.where(ny >= nz, 1, 2))
 
 
 def _intersect_wheel(o, d, r, hw):
     """Rays against a cylinder along local y (radius r, half width hw), centred at the origin: t, on_cap."""
-    a = d[:, 0] ** 2 + d[:, 2] ** 2
-    b = 2 * (o[0] * d[:, 0] + o[2] * d[:, 2])
+    a = d[0] * d[0] + d[2] * d[2]
+    b = 2 * (o[0] * d[0] + o[2] * d[2])
     c = o[0] ** 2 + o[2] ** 2 - r * r
     disc = b * b - 4 * a * c
     with np.errstate(invalid="ignore", divide="ignore"):
         t_side = (-b - np.sqrt(disc)) / (2 * a)
-        y_side = o[1] + t_side * d[:, 1]
+        y_side = o[1] + t_side * d[1]
         side_ok = (disc >= 0) & (t_side > 1e-3) & (np.abs(y_side) <= hw)
         cap_y = hw if o[1] > 0 else -hw
-        t_cap = (cap_y - o[1]) / d[:, 1]
-        xc = o[0] + t_cap * d[:, 0]
-        zc = o[2] + t_cap * d[:, 2]
+        t_cap = (cap_y - o[1]) / d[1]
+        xc = o[0] + t_cap * d[0]
+        zc = o[2] + t_cap * d[2]
         cap_ok = (t_cap > 1e-3) & (xc * xc + zc * zc <= r * r) & (abs(o[1]) > hw)
     t_s = np.where(side_ok, t_side, np.inf)
     t_c = np.where(cap_ok, t_cap, np.inf)
@@ -170,9 +187,11 @@ def _intersect_wheel(o, d, r, hw):
     return np.minimum(t_s, t_c).astype(np.float32), on_cap
 
 
-def _crop_rays(tables: CameraTables, crop):
+def _local_rays(tables: CameraTables, crop, R: np.ndarray):
+    """The crop's ray directions in a local frame (rows x, y, z: (3, N)) and its in-FOV mask (N,)."""
     x0, y0, x1, y1 = crop
-    return tables.rays[y0:y1, x0:x1].reshape(-1, 3), tables.valid[y0:y1, x0:x1].ravel()
+    d = tables.rays[y0:y1, x0:x1].reshape(-1, 3)
+    return R.T.astype(np.float32) @ d.T, tables.valid[y0:y1, x0:x1].ravel()
 
 
 def _zwrite(crop, t, tbuf, ids, rgb, oid, colour_fn):
@@ -208,19 +227,19 @@ def _render_vehicle(tables, v: Vehicle, vid: int, wheel_ids, tbuf, ids, rgb, sun
         crop = _clip(crops[1 + k], vc)
         if crop is None:
             continue
-        d, valid = _crop_rays(tables, crop)
-        dl = d @ R.astype(np.float32)
+        dl, valid = _local_rays(tables, crop, R)
         o = R.T @ (cam.position - centre)
-        t, tmin = _intersect_box(o, dl, half)
+        t, near = _intersect_box(o, dl, half)
         t[~valid] = np.inf
 
-        def colour(win, dl=dl, o=o, t=t, tmin=tmin, half=half, name=name):
-            axis = tmin[win].argmax(axis=1)
-            sign = -np.sign(dl[win, axis])
+        def colour(win, dl=dl, o=o, t=t, near=near, half=half, name=name):
+            axis = _face_axis(near, win)
+            dw = dl[:, win]
+            sign = -np.sign(dw[axis, np.arange(len(axis))])
             lam = np.maximum(sign * sun_l[axis], 0)
             shade = (0.45 + 0.6 * lam)[:, None]
             col = np.broadcast_to(base, (len(axis), 3)).copy()
-            p = o + t[win, None] * dl[win]
+            p = o + t[win, None] * dw.T
             _paint_details(col, p, axis, sign, half, v, name)
             return np.clip(col * shade * 255, 0, 255).astype(np.uint8)
 
@@ -230,8 +249,7 @@ def _render_vehicle(tables, v: Vehicle, vid: int, wheel_ids, tbuf, ids, rgb, sun
         crop = _clip(crops[3 + k], vc)
         if crop is None:
             continue
-        d, valid = _crop_rays(tables, crop)
-        dl = d @ R.astype(np.float32)
+        dl, valid = _local_rays(tables, crop, R)
         _, _, (wx, wy) = v.wheels[k]
         o = R.T @ (cam.position - v.to_ego(np.array([0.0, 0.0, 0.0]))) - np.array([wx, wy, v.wheel_r])
         hw = v.wheel_w / 2
@@ -239,7 +257,7 @@ def _render_vehicle(tables, v: Vehicle, vid: int, wheel_ids, tbuf, ids, rgb, sun
         t[~valid] = np.inf
 
         def wheel_colour(win, dl=dl, o=o, t=t, on_cap=on_cap):
-            p = o + t[win, None] * dl[win]
+            p = o + t[win, None] * dl[:, win].T
             rad = np.hypot(p[:, 0], p[:, 2]) / v.wheel_r
             cap = on_cap[win]
             n_side = np.stack([p[:, 0], np.zeros_like(rad), p[:, 2]], 1) / v.wheel_r
@@ -320,12 +338,10 @@ class ObjectStats:
 def ground_texture(scene: Scene, noise: np.ndarray, sun: np.ndarray) -> np.ndarray:
     """The frame's ground as a top-down RGB texture: asphalt, markings, soft shadows under vehicles."""
     light = 0.45 + 0.6 * max(sun[2], 0)
-    tex = np.empty(noise.shape + (3,), np.uint8)
-    for c in range(3):
-        tex[..., c] = cv2.convertScaleAbs(noise, alpha=float(scene.asphalt[c] * light * 255 / 128))
-    n = noise.shape[0]
+    gain = tuple(float(c * light * 2) for c in scene.asphalt) + (0.0,)  # noise is centred on 128
+    tex = cv2.multiply(cv2.cvtColor(noise, cv2.COLOR_GRAY2RGB), gain)
 
-    def px(x, y):
+    def px(x, y):  # metres -> texel, fixed point with 4 fractional bits (cv2 ``shift=4``)
         return int(round((x + TEX_HALF) / TEX_RES * 16)), int(round((TEX_HALF - y) / TEX_RES * 16))
 
     for m in scene.markings:
@@ -340,39 +356,33 @@ def ground_texture(scene: Scene, noise: np.ndarray, sun: np.ndarray) -> np.ndarr
             segs = [(p0, p1)]
         for a, b in segs:
             cv2.line(tex, px(*a), px(*b), colour, thick, cv2.LINE_AA, shift=4)
-    shadow_tex = np.zeros((n, n), np.uint8)
+    shade = np.full(noise.shape, 255, np.uint8)
     for v in scene.vehicles:
-        for grow, val in ((0.25, 50), (0.05, 110)):
+        for grow, val in ((0.25, 205), (0.05, 145)):  # penumbra, then the dark core under the body
             c, s = math.cos(v.yaw), math.sin(v.yaw)
             hx, hy = v.length / 2 + grow, v.width / 2 + grow
             corners = np.array([[hx, hy], [hx, -hy], [-hx, -hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]])
             pts = np.array([px(v.x + x, v.y + y) for x, y in corners], np.int32)
-            cv2.fillConvexPoly(shadow_tex, pts, val, cv2.LINE_AA, shift=4)
-    sh = shadow_tex > 0
-    if sh.any():
-        tex[sh] = (tex[sh].astype(np.uint16) * (255 - shadow_tex[sh, None]) // 255).astype(np.uint8)
-    return tex
+            cv2.fillConvexPoly(shade, pts, val, cv2.LINE_AA, shift=4)
+    return cv2.multiply(tex, cv2.cvtColor(shade, cv2.COLOR_GRAY2RGB), scale=1 / 255)
 
 
 def render_camera(tables: CameraTables, scene: Scene, tex: np.ndarray, skyline: np.ndarray,
-                  skyline_rgb: np.ndarray, sun: np.ndarray, haze: np.ndarray):
+                  skyline_rgb: np.ndarray, sun: np.ndarray):
     """Render one camera: returns (rgb uint8 before noise, id buffer, per-vehicle stats, per-wheel stats)."""
     cam = tables.cam
-    h, w = cam.height, cam.width
-    rgb = np.zeros((h, w, 3), np.uint8)
     ground = cv2.remap(tex, tables.ground_map[0], tables.ground_map[1], cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_CONSTANT, borderValue=tuple(int(c) for c in tex[0, 0]))
-    g = ground.astype(np.float32) * (1 - tables.ground_fog) + haze * 255 * tables.ground_fog
-    rgb[tables.ground_mask] = g[tables.ground_mask].astype(np.uint8)
+    rgb = cv2.blendLinear(ground, tables.haze, *tables.fog)
     sky = tables.sky_rgb.copy()
     bld = tables.sky_height < skyline[tables.sky_bin]
     sky[bld] = skyline_rgb[tables.sky_bin[bld]]
-    rgb.reshape(-1, 3)[tables.sky_idx] = (sky * 255).astype(np.uint8)
-    ego = np.isfinite(tables.ego_t)
-    rgb[ego] = tables.ego_rgb[ego]
+    flat = rgb.reshape(-1, 3)
+    flat[tables.sky_idx] = (sky * 255).astype(np.uint8)
+    flat[tables.outside_idx] = 0
+    cv2.copyTo(tables.ego_rgb, tables.ego_mask, rgb)
     tbuf = tables.ego_t.copy()
-    ids = np.full((h, w), NO_ID, np.int16)
-    ids[ego] = EGO_ID
+    ids = tables.base_ids.copy()
     nv = len(scene.vehicles)
     own_masks, crops_of, wheel_own = [], [], np.zeros((nv, 4), np.int64)
     all_boxes = [_vehicle_boxes(v) for v in scene.vehicles]
@@ -410,10 +420,18 @@ def _bbox(mask: np.ndarray, x0: int, y0: int):
     return (x0 + int(cols[0]), y0 + int(rows[0]), x0 + int(cols[-1]) + 1, y0 + int(rows[-1]) + 1)
 
 
-def finish(rgb: np.ndarray, rng: np.random.Generator, noise_sigma: float, blur_sigma: float,
+def noise_bank(width: int, height: int, sigma: float, seed: int = 777) -> np.ndarray:
+    """Gaussian sensor noise, drawn once per process; each image takes a random window of it."""
+    rng = np.random.default_rng(seed)
+    return np.round(rng.normal(0, sigma, (height + NOISE_PAD, width + NOISE_PAD, 3))).astype(np.int16)
+
+
+def finish(rgb: np.ndarray, rng: np.random.Generator, bank: np.ndarray, blur_sigma: float,
            exposure: float) -> np.ndarray:
     """Camera effects: exposure, lens blur and sensor noise, so that crops are not trivially clean."""
+    h, w = rgb.shape[:2]
     img = cv2.GaussianBlur(rgb, (0, 0), blur_sigma) if blur_sigma > 0 else rgb
-    noise = rng.standard_normal(img.shape, dtype=np.float32) * noise_sigma
-    out = img.astype(np.float32) * exposure + noise
+    img = cv2.convertScaleAbs(img, alpha=exposure)
+    dy, dx = rng.integers(0, NOISE_PAD, 2)
+    out = img.astype(np.int16) + bank[dy:dy + h, dx:dx + w]
     return np.clip(out, 0, 255).astype(np.uint8)

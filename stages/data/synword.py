@@ -25,6 +25,7 @@ from stages.data.render import (
     ego_vehicle,
     finish,
     ground_texture,
+    noise_bank,
     render_camera,
 )
 from stages.data.world import SceneSampler
@@ -46,6 +47,7 @@ class FrameGenerator:
         n = int(round(2 * TEX_HALF / TEX_RES))
         blotches = np.random.default_rng(12345).normal(0, 1, (n // 16, n // 16)).astype(np.float32)
         fine = np.random.default_rng(54321).normal(0, 1, (n, n)).astype(np.float32)
+        self.sensor_noise = noise_bank(w, h, cfg["render"]["noise_sigma"])
         self.noise = np.clip(128 + 9 * cv2.resize(blotches, (n, n), interpolation=cv2.INTER_CUBIC) + 5 * fine,
                              0, 255).astype(np.uint8)
 
@@ -61,12 +63,11 @@ class FrameGenerator:
         sun = np.array([math.cos(sun_az) * math.cos(sun_el), math.sin(sun_az) * math.cos(sun_el), math.sin(sun_el)])
         tex = ground_texture(scene, self.noise, sun)
         skyline = rng.uniform(3, 25, 72).astype(np.float32) * (rng.random(72) < 0.8)
-        skyline_rgb = (rng.uniform(0.35, 0.75, (72, 1)) * rng.uniform(0.85, 1.15, (72, 3))).astype(np.float32)
-        haze = np.array([0.72, 0.75, 0.78], np.float32)
+        skyline_rgb = (rng.uniform(0.3, 0.65, (72, 1)) * rng.uniform(0.9, 1.1, (72, 3))).astype(np.float32)
         out = []
         for tables in self.tables:
-            rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun, haze)
-            img = finish(rgb, rng, rcfg["noise_sigma"], rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
+            rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun)
+            img = finish(rgb, rng, self.sensor_noise, rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
             rec = self.labels(frame_id, tables.cam.name, scene, vstats, wstats, rng)
             out.append((tables.cam.name, img, rec))
         return out
@@ -128,7 +129,7 @@ def _work(frame_id: int) -> list[Record]:
 def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Record]:
     """Render a frame, write its images, return the records worth keeping (>= 1 owner-member relation)."""
     kept = []
-    for camera, img, rec in gen.render_frame(frame_id):
+    for _, img, rec in gen.render_frame(frame_id):
         if not rec.relations:
             continue
         path = out_dir / rec.image
