@@ -50,11 +50,12 @@ def load_predictions(path: Path, root: Path, known: set[str]) -> dict[str, Recor
     return {r.image: r for r in records}
 
 
-def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, seed: int) -> dict:
+def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, seed: int,
+          max_easy_vehicles: int = 3) -> dict:
     root, gts = load_ground_truth(gt_root)
     preds = load_predictions(pred_path, root, {r.image for r in gts})
     by_image = {r.image: r for r in gts}
-    subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed).items()}
+    subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed, max_easy_vehicles).items()}
     results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
     sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
              for s, recs in subsets.items()}
@@ -71,10 +72,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-box-px", type=float, default=8.0, help="evaluated wheels' minimum shorter side")
     parser.add_argument("--match-iou", type=float, default=0.5, help="IoU for matching predicted to true boxes")
     parser.add_argument("--seed", type=int, default=42, help="seed of the mixed subset's sample")
+    parser.add_argument("--max-easy-vehicles", type=int, default=3, help="easy: at most this many vehicles")
     parser.add_argument("--name", default="submitted", help="row name in the printed table")
     args = parser.parse_args(argv)
     try:
-        out = score(args.gt, args.pred, args.min_box_px, args.match_iou, args.seed)
+        out = score(args.gt, args.pred, args.min_box_px, args.match_iou, args.seed, args.max_easy_vehicles)
     except (DatasetError, ScoreError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
