@@ -5,12 +5,17 @@ Layout under the cache directory::
     <stage>/<key>/manifest.json     key parts, metrics, seconds, MLflow run id, output file record
     <stage>/<key>/out/              the stage's outputs (what downstream stages receive)
     <stage>/latest.json             the key parts of the stage's last run, to explain the next miss
-    <stage>/.tmp-<key>-<pid>-<rnd>  an entry being computed (never looks complete: no final name)
+    <stage>/.partial-<key>/         an entry being computed (never looks complete: no final name); kept
+                                    across a crash so the next attempt at the key resumes from it
+    <stage>/.trash-<key>-<pid>-<rnd> an entry being replaced
     <stage>/.locks/<key>.lock       fcntl lock: one computation per key across processes
 
 An entry exists under its final name only after the engine has written its manifest and renamed the
-temp directory into place, so a crash leaves at most a ``.tmp-`` directory; those are removed by the
-next pipeline that can take their key's lock.
+work directory into place, so a crash leaves at most a ``.partial-`` directory. Its name is stable so
+that the next attempt at the same key (under the key's lock) gets the same ``out/`` back, with whatever
+the crashed attempt left there (Lightning's ``last.ckpt``, cached crops): training resumes instead of
+starting over. A stage that raises has its work directory removed: only crashes and interruptions
+leave one behind.
 
 Verification on read (``verify``):
 - ``fast`` (default): the file list and every size must match the manifest; a file whose mtime differs
@@ -38,6 +43,7 @@ from pathlib import Path
 from pipeline.errors import PipelineError
 
 MANIFEST = "manifest.json"
+PARTIAL = ".partial-"
 OUT = "out"
 LATEST = "latest.json"
 VERIFY_MODES = ("fast", "full")
@@ -184,16 +190,21 @@ class Cache:
         finally:
             os.close(fd)  # closing releases the flock
 
-    def begin(self, stage: str, key: str) -> Path:
-        """A fresh temp directory (with an empty ``out/``) for computing ``key``; hold the lock."""
+    def partial_dir(self, stage: str, key: str) -> Path:
+        return self.stage_dir(stage) / f"{PARTIAL}{key}"
+
+    def begin(self, stage: str, key: str) -> tuple[Path, bool]:
+        """(work directory, resumed) for computing ``key``; hold the lock. The work directory's ``out/`` is
+        empty unless an earlier attempt at this key crashed, in which case it holds what that attempt
+        left (``resumed`` is True)."""
         self.remove_stale(stage, key)
-        tmp = self.stage_dir(stage) / f".tmp-{key}-{os.getpid()}-{secrets.token_hex(4)}"
+        work = self.partial_dir(stage, key)
         try:
-            (tmp / OUT).mkdir(parents=True)
+            (work / OUT).mkdir(parents=True, exist_ok=True)
+            (work / MANIFEST).unlink(missing_ok=True)  # a crash between writing it and the rename
         except OSError as exc:
-            shutil.rmtree(tmp, ignore_errors=True)
             raise _write_error(stage, self.stage_dir(stage), exc) from exc
-        return tmp
+        return work, any((work / OUT).iterdir())
 
     def commit(self, stage: str, key: str, tmp: Path, manifest: dict) -> Entry:
         """Record the outputs, write the manifest and rename ``tmp`` into place; hold the lock."""
@@ -222,22 +233,22 @@ class Cache:
     # -- cleaning ------------------------------------------------------------------------------
 
     def remove_stale(self, stage: str, key: str) -> None:
-        """Remove leftovers of earlier attempts at ``key`` (caller holds its lock, so none is live)."""
+        """Remove leftovers of interrupted replacements of ``key`` (caller holds its lock, so none is live)."""
         stage_dir = self.stage_dir(stage)
         if not stage_dir.is_dir():
             return
         for child in stage_dir.iterdir():
-            if child.name.startswith((f".tmp-{key}-", f".trash-{key}-")):
+            if child.name.startswith(f".trash-{key}-"):
                 shutil.rmtree(child, ignore_errors=True)
 
     def sweep(self, stage: str) -> int:
-        """Remove temp dirs of crashed runs whose key nobody is computing now; returns how many."""
+        """Remove trash dirs of crashed replacements whose key nobody is computing now; returns how many."""
         stage_dir = self.stage_dir(stage)
         if not stage_dir.is_dir():
             return 0
         removed = 0
         for child in list(stage_dir.iterdir()):
-            if not child.name.startswith((".tmp-", ".trash-")):
+            if not child.name.startswith(".trash-"):  # never .partial-: resumable work of a crashed run
                 continue
             key = child.name.split("-")[1]
             lock_path = stage_dir / ".locks" / f"{key}.lock"

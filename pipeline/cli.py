@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import signal
 import sys
+import traceback
 from pathlib import Path
 
 import hydra
@@ -28,6 +29,29 @@ def _app(cfg: DictConfig) -> None:
     except PipelineError as exc:
         print(f"error: {exc}", file=sys.stderr, flush=True)
         sys.exit(1)
+    except Exception as exc:
+        stage = getattr(exc, "pipeline_stage", None)
+        if stage is None:
+            raise  # not from a stage: an engine bug, keep Hydra's traceback
+        # A stage's error (bad data, diverged training, a bug) as one line naming the stage; the
+        # traceback goes to a file instead of burying the message.
+        log = _traceback_file(exc)
+        print(f"error: stage '{stage}' failed: {type(exc).__name__}: {exc}\n(traceback: {log})",
+              file=sys.stderr, flush=True)
+        sys.exit(1)
+
+
+def _traceback_file(exc: BaseException) -> Path | str:
+    from hydra.core.hydra_config import HydraConfig
+
+    text = "".join(traceback.format_exception(exc))
+    path = Path(HydraConfig.get().runtime.output_dir) / "error.log"
+    try:
+        path.write_text(text)
+    except OSError:
+        print(text, file=sys.stderr)
+        return "printed above: the run directory is not writable"
+    return path
 
 
 def _exit_on_sigterm(signum, _frame) -> None:

@@ -116,8 +116,10 @@ def _stage_cfg(cfg: DictConfig, spec: StageSpec) -> DictConfig:
 
 def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
              inputs: dict[str, Path], run_id: str, uri: str) -> Entry:
-    """Run the stage into a temp dir and commit it; the caller holds the key's lock."""
-    tmp = cache.begin(spec.name, plan.key)
+    """Run the stage into its work dir and commit it; the caller holds the key's lock."""
+    tmp, resumed = cache.begin(spec.name, plan.key)
+    if resumed:
+        _say(f"Stage '{spec.name}': resuming from what an interrupted attempt left in {tmp}")
     start = time.perf_counter()
     try:
         func = getattr(importlib.import_module(spec.module), spec.function, None)
@@ -134,9 +136,12 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
             "mlflow_run_id": run_id, "created": now_iso(),
         }
         return cache.commit(spec.name, plan.key, tmp, manifest)
-    except BaseException:
-        cache.abort(tmp)
+    except Exception as exc:
+        cache.abort(tmp)  # a failure, not an interruption: the next attempt starts clean
+        if not isinstance(exc, PipelineError):
+            exc.pipeline_stage = spec.name  # the CLI reports it as this stage's failure, in one line
         raise
+    # KeyboardInterrupt / SystemExit (SIGTERM): the work dir stays, so a re-run resumes from it
 
 
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,

@@ -1,0 +1,86 @@
+"""MLflow parent/child runs, summary.json, server fail-fast and the stage's view of its run."""
+
+import json
+import socket
+import time
+from pathlib import Path
+
+import mlflow
+import pytest
+
+from pipeline.errors import PipelineError
+from pipeline.runner import run_pipeline
+from pipeline.tracker import flatten_params
+from pipeline.tracking import stage_run_info
+
+
+def runs(toy):
+    mlflow.set_tracking_uri(toy.db_uri)
+    return mlflow.search_runs(experiment_names=["toy"], output_format="list")
+
+
+def test_parent_and_child_runs_carry_params_metrics_and_cache_tags(toy):
+    first = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
+    second = run_pipeline(toy.config(), run_dir=toy.root / "run2", in_process_tracking=True)
+    by_id = {r.info.run_id: r for r in runs(toy)}
+    assert len(by_id) == 2 * 4
+
+    parent = by_id[second["mlflow_run_id"]]
+    assert parent.info.run_name == "toy"
+    assert parent.data.tags["profile"] == "toy" and parent.data.tags["seed"] == "7"
+    assert "git_commit" in parent.data.tags
+    assert parent.data.params["alpha.value"] == "3"
+    assert parent.data.params["pipeline.stages.a.config"] == '["alpha", "seed"]'
+    assert parent.data.metrics["alpha.value"] == 6.0 and parent.data.metrics["beta.sum"] == 16.0
+    assert {"a.seconds", "b.seconds", "c.seconds", "pipeline.seconds"} <= set(parent.data.metrics)
+
+    computed = by_id[first["stages"]["a"]["mlflow_run_id"]]
+    assert computed.data.tags["cache"] == "miss"
+    assert computed.data.tags["mlflow.parentRunId"] == first["mlflow_run_id"]
+    hit = by_id[second["stages"]["a"]["mlflow_run_id"]]
+    assert hit.data.tags["cache"] == "hit"
+    assert hit.data.tags["mlflow.parentRunId"] == second["mlflow_run_id"]
+    assert hit.data.tags["computed_by_run"] == computed.info.run_id
+    assert hit.data.tags["cache_key"] == second["stages"]["a"]["key"]
+    assert hit.data.metrics["alpha.value"] == 6.0
+    assert hit.info.status == "FINISHED"
+    artifacts = mlflow.MlflowClient(toy.db_uri).list_artifacts(computed.info.run_id)
+    assert [a.path for a in artifacts] == ["report.md"]
+
+
+def test_stage_sees_its_child_run_and_none_outside(toy):
+    summary = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
+    seen = (Path(summary["stages"]["a"]["output_dir"]) / "run_info.txt").read_text()
+    assert seen == repr((toy.db_uri, summary["stages"]["a"]["mlflow_run_id"]))
+    assert stage_run_info() is None
+
+
+def test_summary_json_lists_every_stage(toy):
+    summary = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
+    written = json.loads((toy.root / "run" / "summary.json").read_text())
+    assert written == json.loads(json.dumps(summary))
+    assert set(written["stages"]) == {"a", "b", "c"}
+    b = written["stages"]["b"]
+    assert set(b) >= {"key", "hit", "seconds", "output_dir", "metrics", "mlflow_run_id"}
+    assert Path(b["output_dir"], "sum.txt").read_text() == "16"
+    assert written["mlflow_run_id"] and written["up_to_date"] is False
+
+
+def test_unreachable_required_server_fails_fast_before_any_stage(toy):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # nothing listens here once closed
+    counter = toy.root / "count.txt"
+    cfg = toy.config(**{"tracking.uri": f"http://127.0.0.1:{port}", "tracking.require_server": True,
+                        "alpha.counter": str(counter)})
+    start = time.perf_counter()
+    with pytest.raises(PipelineError, match=f"MLflow tracking server http://127.0.0.1:{port} is not reachable"):
+        run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    assert time.perf_counter() - start < 5
+    assert not counter.exists() and not (toy.root / "cache").exists()
+
+
+def test_long_params_are_truncated_and_lists_are_json():
+    flat = flatten_params({"a": {"b": "x" * 600, "c": [1, 2]}, "d": None})
+    assert len(flat["a.b"]) == 500 and flat["a.b"].endswith("[truncated]")
+    assert flat["a.c"] == "[1, 2]" and flat["d"] == "null"
