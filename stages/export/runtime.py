@@ -133,20 +133,22 @@ class OnnxRelation:
 
 
 class DeepwordMethod:
-    """An evaluate row / inference method: ``predict(record) -> Record`` for records of one dataset root."""
+    """An evaluate row / inference method: ``predict(record) -> Record``, reading images with ``load_rgb``."""
 
-    def __init__(self, name: str, relation: OnnxRelation, root: str | os.PathLike):
-        from stages.word_format import load_image
-
-        self.name, self.relation = name, relation
-        self._load = lambda rec: load_image(root, rec)
+    def __init__(self, name: str, relation: OnnxRelation, load_rgb: Callable[[Record], np.ndarray]):
+        self.name, self.relation, self.load_rgb = name, relation, load_rgb
 
     def predict(self, rec: Record) -> Record:
-        return self.relation.predict_many([rec], self._load)[0]
+        return self.relation.predict_many([rec], self.load_rgb)[0]
 
 
-def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.PathLike, threads: int = 1):
-    return DeepwordMethod(name, OnnxRelation(bundle_dir, METHOD_VARIANTS[name], threads), root)
+def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.PathLike, threads: int = 1,
+                    load_rgb: Callable[[Record], np.ndarray] | None = None) -> DeepwordMethod:
+    """``deepword`` / ``deepword_int8`` on records of the dataset at ``root`` (or images from ``load_rgb``)."""
+    from stages.word_format import load_image
+
+    relation = OnnxRelation(bundle_dir, METHOD_VARIANTS[name], threads)
+    return DeepwordMethod(name, relation, load_rgb or (lambda rec: load_image(root, rec)))
 
 
 # --- detector ---------------------------------------------------------------------------------------

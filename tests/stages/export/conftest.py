@@ -127,3 +127,30 @@ def exported(upstream, tmp_path_factory) -> tuple[Path, dict[str, float]]:
     torch.set_num_threads(1)
     metrics = run(OmegaConf.create({"export": EXPORT_CFG, "seed": 0}), upstream, out)
     return out, metrics
+
+
+@pytest.fixture(scope="session")
+def evaluated(upstream, exported, tmp_path_factory) -> Path:
+    """The evaluate stage run once with the export stage as input (its fitted baselines and predictions)."""
+    from stages.evaluate.stage import run
+
+    out = tmp_path_factory.mktemp("evaluate")
+    cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "prior", "deepword", "deepword_int8"],
+           "box_sources": ["gt", "detected"], "fit_images": 20, "gallery_images": 0}
+    run(OmegaConf.create({"eval": cfg, "seed": 0}), {**upstream, "export": exported[0]}, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def generated_images(tmp_path_factory) -> list[Path]:
+    """The four camera images of one frame of the project's own synthetic generator (320x240)."""
+    from stages.data.synword import FrameGenerator
+
+    cfg = OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[3] / "conf/data/synword.yaml"), resolve=True)
+    cfg["image_size"] = [320, 240]
+    out = tmp_path_factory.mktemp("frame")
+    paths = []
+    for camera, rgb, _ in FrameGenerator(cfg, seed=0).render_frame(0):
+        paths.append(out / f"{camera}.png")
+        cv2.imwrite(str(paths[-1]), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    return paths

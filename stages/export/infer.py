@@ -1,0 +1,193 @@
+"""``deepword infer``: owner-member relations of new images or of a whole WORD-style dataset, with the
+exported models in onnxruntime (torch is never imported on this path).
+
+    deepword infer IMAGE... --out DIR            detector + relation on each image
+    deepword infer --dataset ROOT --out DIR      on the dataset's own boxes (the ground-truth-box setting)
+    deepword infer --dataset ROOT --out DIR --detect    on detected boxes (end to end)
+
+Options: ``--method deepword|deepword_int8|logic|logic_plus|prior`` (the baselines use the thresholds the
+pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--run RUN_ID`` picks the pipeline
+run whose artifacts to use (default: the newest finished one; see ``stages.export.resolve``), or
+``--export DIR`` [``--evaluate DIR``] name the stage output directories directly.
+
+Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
+the dataset root, or to the images' common folder) and, per image, a Fig. 5-style overlay
+``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``). Score a dataset's predictions with
+``deepword score --gt ROOT --pred DIR/labels.jsonl``. Bad input exits with code 2 and a message naming the
+file (and line and field for a labels file), without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from stages.export.runtime import METHOD_VARIANTS
+from stages.word_format import CAMERAS, DatasetError, Record, write_records
+
+BASELINES = ("logic", "logic_plus", "prior")
+METHODS = (*METHOD_VARIANTS, *BASELINES)
+PREDICTIONS_FILE = "labels.jsonl"
+OVERLAY_DIR = "overlays"
+
+
+class InferError(RuntimeError):
+    """A usage or input problem reported as one line (exit code 2)."""
+
+
+def read_image(path: Path) -> np.ndarray:
+    """RGB uint8, or InferError naming the file."""
+    import cv2
+
+    if not path.is_file():
+        raise InferError(f"{path}: image file not found")
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise InferError(f"{path}: cannot read the image (not a PNG/JPEG file, or corrupt)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], dict[str, np.ndarray]]:
+    """Records without boxes for loose images: (their common folder = the root, records, {image: RGB})."""
+    images = {p: read_image(p) for p in paths}
+    root = Path(os.path.commonpath([str(p.resolve().parent) for p in paths]))
+    records, pixels = [], {}
+    for i, (path, rgb) in enumerate(images.items()):
+        rel = path.resolve().relative_to(root).as_posix()
+        if rel in pixels:
+            raise InferError(f"{path}: the same image is given twice")
+        pixels[rel] = rgb
+        records.append(Record(image=rel, frame_id=i, camera=camera, width=rgb.shape[1], height=rgb.shape[0],
+                              boxes=np.zeros((0, 7)), relations=[], wheel_pairs=[]))
+    return root, records, pixels
+
+
+def resolve_dirs(args) -> dict[str, Path]:
+    """The export (and, for a baseline, evaluate) stage directories to use."""
+    from stages.export.resolve import stage_dirs
+
+    if args.export is not None:
+        dirs = {"export": args.export}
+        if args.evaluate is not None:
+            dirs["evaluate"] = args.evaluate
+        return dirs
+    run_id, dirs = stage_dirs(args.run, args.tracking_uri, args.cache_dir)
+    print(f"using the artifacts of pipeline run {run_id}", file=sys.stderr)
+    return dirs
+
+
+def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
+    """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
+    if name in METHOD_VARIANTS:
+        from stages.export.runtime import deepword_method
+
+        return deepword_method(name, dirs["export"], root, threads, load_rgb)
+    from stages.evaluate.baselines import baseline_from_params
+    from stages.evaluate.stage import BASELINES_FILE
+    from stages.export.runtime import PRIORS_FILE
+    from stages.priors.mixture import load_priors
+
+    if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
+        raise InferError(f"--method {name} needs the fitted baselines (the evaluate stage's {BASELINES_FILE}): "
+                         "pass --evaluate DIR or a --run whose evaluate stage finished")
+    params = json.loads((dirs["evaluate"] / BASELINES_FILE).read_text())
+    if name not in params:
+        raise InferError(f"{dirs['evaluate'] / BASELINES_FILE}: no fitted parameters for {name!r}")
+    return baseline_from_params(name, params[name], load_priors(dirs["export"] / PRIORS_FILE))
+
+
+def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record) -> Path:
+    import cv2
+
+    from stages.overlay import draw_relations
+
+    path = out_dir / OVERLAY_DIR / (Path(pred.image).with_suffix("").as_posix().replace("/", "__") + ".png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(draw_relations(rgb, pred), cv2.COLOR_RGB2BGR))
+    return path
+
+
+def infer(args) -> list[Record]:
+    from stages.word_format import load_image
+
+    dirs = resolve_dirs(args)
+    if args.dataset is not None:
+        from stages.evaluate.methods import boxes_only
+        from stages.evaluate.score import ScoreError, load_ground_truth
+
+        try:
+            root, records = load_ground_truth(args.dataset)
+        except ScoreError as exc:
+            raise InferError(str(exc)) from None
+        pixels: dict[str, np.ndarray] = {}
+        detect = args.detect
+        records = [boxes_only(r) for r in records]
+        overlays = args.overlays
+    else:
+        root, records, pixels = image_records(args.images, args.camera)
+        detect, overlays = True, len(records)
+
+    def rgb_of(rec: Record) -> np.ndarray:
+        if rec.image not in pixels:
+            pixels[rec.image] = load_image(root, rec)
+        return pixels[rec.image]
+
+    if detect:
+        from stages.export.runtime import OnnxDetector
+
+        detector = OnnxDetector(dirs["export"], args.threads)
+        records = [detector.detect(rgb_of(r), r) for r in records]
+    method = build_method(args.method, dirs, root, args.threads, rgb_of)
+    preds = [method.predict(r) for r in records]
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_records(args.out / PREDICTIONS_FILE, preds)
+    for pred in preds[:overlays]:
+        write_overlay(args.out, rgb_of(pred), pred)
+    return preds
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="deepword infer", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("images", nargs="*", type=Path, help="PNG/JPEG images (detector + relation)")
+    p.add_argument("--dataset", type=Path, help="a WORD-style dataset root (labels.jsonl) or a data stage output")
+    p.add_argument("--detect", action="store_true", help="with --dataset: use detected instead of annotated boxes")
+    p.add_argument("--out", type=Path, required=True, help="output folder (labels.jsonl, overlays/)")
+    p.add_argument("--method", choices=METHODS, default="deepword")
+    p.add_argument("--run", help="MLflow run id of the pipeline run whose artifacts to use (default: newest)")
+    p.add_argument("--export", type=Path, help="an export stage output directory (instead of --run)")
+    p.add_argument("--evaluate", type=Path, help="an evaluate stage output directory (baselines, with --export)")
+    p.add_argument("--tracking-uri", help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI or sqlite:///mlflow.db)")
+    p.add_argument("--cache-dir", help="the pipeline's cache directory (default: $DEEPWORD_CACHE or the run's)")
+    p.add_argument("--camera", choices=CAMERAS, default="front", help="camera name written for loose images")
+    p.add_argument("--overlays", type=int, default=0, help="with --dataset: overlays for the first N images")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = parser()
+    args = p.parse_args(argv)
+    if bool(args.images) == (args.dataset is not None):
+        p.error("give either IMAGE... or --dataset ROOT")
+    if args.detect and args.dataset is None:
+        p.error("--detect goes with --dataset (loose images are always detected)")
+    from stages.export.resolve import ResolveError
+
+    try:
+        preds = infer(args)
+    except (InferError, DatasetError, ResolveError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    n_rel = sum(len(r.relations) for r in preds)
+    print(f"{len(preds)} images, {n_rel} owner-member relations -> {args.out / PREDICTIONS_FILE}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""Exported graphs against PyTorch: both relation variants (the dynamic one at two object counts), the
+detector, a deliberately diverging model that parity must catch, INT8, and the numpy decoding."""
+
+import numpy as np
+import pytest
+import torch
+from conftest import RELATION_MODEL
+
+from stages.export.decode import decode_couples, decode_owners
+from stages.export.onnx_export import export_detector, export_relation, relation_example
+from stages.export.parity import ParityError, ParityReport, detector_parity, relation_parity
+from stages.export.runtime import RELATION_OUTPUTS, ort_session
+from stages.relation import decode as torch_decode
+from stages.relation.inputs import ImageGraph
+from stages.relation.model import ModelConfig, RelationNet
+
+torch.set_num_threads(1)
+
+
+def small_net(seed: int = 0) -> RelationNet:
+    torch.manual_seed(seed)
+    return RelationNet(ModelConfig(**RELATION_MODEL)).eval()
+
+
+def random_graphs(counts, size: int, seed: int = 0) -> list[ImageGraph]:
+    """Graphs with ``counts`` nodes each: random crops, classes, priors and candidates."""
+    rng = np.random.default_rng(seed)
+    graphs = []
+    for n in counts:
+        classes = rng.integers(0, 2, n).astype(np.int8)
+        cand = (classes[:, None] != classes[None, :]) | ((classes[:, None] == 1) & (classes[None, :] == 1))
+        np.fill_diagonal(cand, False)
+        adj = np.where(cand, rng.random((n, n)), 0).astype(np.float32)
+        np.fill_diagonal(adj, 1.0)
+        graphs.append(ImageGraph(crops=rng.integers(0, 256, (n, 3, size, size), dtype=np.uint8),
+                                 coords=rng.random((n, 4), dtype=np.float32), classes=classes,
+                                 valid=np.ones(n, bool), adj=adj, cand=cand))
+    return graphs
+
+
+@pytest.fixture(scope="module")
+def relation_models(tmp_path_factory):
+    out = tmp_path_factory.mktemp("relation_onnx")
+    net = small_net()
+    size = RELATION_MODEL["input_size"]
+    static = export_relation(net, out / "static.onnx", size, 12, static=True)
+    dynamic = export_relation(net, out / "dynamic.onnx", size, 12, static=False)
+    return net, static, dynamic
+
+
+def test_static_variant_matches_torch_padded_to_max_objects(relation_models):
+    net, static, _ = relation_models
+    size = RELATION_MODEL["input_size"]
+    report = relation_parity(net, ort_session(static, 1), random_graphs([3, 12, 7], size), size, 0.5, n=12)
+    report.check("static", 1e-4, 99.9)
+    assert report.decisions > 50 and report.max_abs_diff < 1e-5
+
+
+@pytest.mark.parametrize("counts", [[3, 2], [17, 9]])
+def test_dynamic_variant_matches_torch_at_other_object_counts(relation_models, counts):
+    net, _, dynamic = relation_models
+    size = RELATION_MODEL["input_size"]
+    report = relation_parity(net, ort_session(dynamic, 1), random_graphs(counts, size, seed=len(counts) + counts[0]),
+                             size, 0.5, n=None)
+    report.check("dynamic", 1e-4, 99.9)
+    assert report.decisions > 0
+
+
+def test_static_variant_refuses_another_object_count(relation_models):
+    _, static, _ = relation_models
+    feed = dict(zip(("crops", "coords", "adj", "cand"), (t.numpy() for t in relation_example(5, 16, 1)), strict=True))
+    with pytest.raises(Exception, match="(?i)dimension|shape"):
+        ort_session(static, 1).run(list(RELATION_OUTPUTS), feed)
+
+
+def test_parity_catches_a_torch_model_that_diverges_after_export(relation_models):
+    net, static, _ = relation_models
+    size = RELATION_MODEL["input_size"]
+    diverged = small_net()
+    with torch.no_grad():  # one weight of the torch model changed after the ONNX file was written
+        diverged.role_head.bias += 1.0
+    report = relation_parity(diverged, ort_session(static, 1), random_graphs([6, 12], size), size, 0.5, n=12)
+    assert report.max_abs_diff > 1e-2
+    with pytest.raises(ParityError, match="differs from PyTorch"):
+        report.check("static", 1e-4, 99.9)
+
+
+def test_parity_catches_a_perturbed_onnx_graph(relation_models, tmp_path):
+    import onnx
+    from onnx import numpy_helper
+
+    net, _, dynamic = relation_models
+    model = onnx.load(str(dynamic))
+    biggest = max(model.graph.initializer, key=lambda t: int(np.prod(t.dims)))  # the backbone's fc
+    weights = numpy_helper.to_array(biggest)
+    biggest.CopyFrom(numpy_helper.from_array(weights + 0.05 * np.sign(weights), biggest.name))
+    onnx.save(model, str(tmp_path / "perturbed.onnx"))
+    size = RELATION_MODEL["input_size"]
+    report = relation_parity(net, ort_session(tmp_path / "perturbed.onnx", 1), random_graphs([5, 9], size), size,
+                             0.5, n=None)
+    with pytest.raises(ParityError):
+        report.check("dynamic", 1e-4, 99.9)
+
+
+def test_parity_catches_a_flipped_decision_even_within_the_tolerance():
+    report = ParityReport()
+    report.add(1e-6, agreeing=998, decisions=1000)
+    with pytest.raises(ParityError):
+        report.check("x", 1e-4, 99.9)
+
+
+def test_detector_matches_torch_with_dynamic_batch_and_catches_divergence(tmp_path):
+    from conftest import DETECTOR
+
+    from stages.detector.model import build_centernet, model_config
+
+    torch.manual_seed(0)
+    cfg = model_config(DETECTOR)
+    net = build_centernet(cfg).eval()
+    path = export_detector(net, tmp_path / "det.onnx", 64, 64, 10)
+    images = np.random.default_rng(0).normal(size=(3, 3, 64, 64)).astype(np.float32)
+    session = ort_session(path, 1)
+    report = detector_parity(net, session, images, 10, 0.1, batch_size=3)  # traced at batch 2, run at 3
+    report.check("detector", 1e-4, 99.9)
+    with torch.no_grad():
+        net.heads.wh[-1].bias += 1.0
+    with pytest.raises(ParityError):
+        detector_parity(net, session, images, 10, 0.1).check("detector", 1e-4, 99.9)
+
+
+def test_int8_model_keeps_decisions_mostly(exported):
+    _, metrics = exported
+    assert metrics["export.relation.int8.parity_decision_agreement"] >= 90.0
+    assert metrics["export.relation.int8.parity_max_abs_diff"] > 0  # it is a different (quantised) model
+
+
+@pytest.mark.parametrize("one_owner", [True, False])
+def test_numpy_decoding_equals_the_training_decoding(one_owner):
+    rng = np.random.default_rng(1)
+    scores = rng.uniform(-1, 1, (4, 9, 9)).astype(np.float32)
+    scores[:, :, 3] = scores[:, :, 4]  # ties: both pick the first
+    classes = rng.integers(-1, 2, (4, 9))
+    cand = (rng.random((4, 9, 9)) > 0.3).astype(np.float32)
+    t = [torch.from_numpy(a) for a in (scores, classes, cand)]
+    np.testing.assert_array_equal(decode_owners(scores, classes, cand, 0.2, one_owner),
+                                  torch_decode.decode_owners(*t, 0.2, one_owner).numpy())
+    np.testing.assert_array_equal(decode_couples(scores, classes, cand, 0.2),
+                                  torch_decode.decode_couples(*t, 0.2).numpy())
