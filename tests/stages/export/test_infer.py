@@ -1,0 +1,136 @@
+"""``deepword infer``: generated images and a dataset through the exported models, baselines with the
+pipeline's fitted thresholds, no torch on the path, clear errors, and the MLflow run resolution."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stages.cli import main as deepword
+from stages.export.infer import main as infer
+from stages.word_format import read_records
+
+REPO = Path(__file__).parents[3]
+
+
+def test_infer_on_generated_images_writes_predictions_and_overlays(exported, generated_images, tmp_path):
+    out = tmp_path / "out"
+    assert infer([*map(str, generated_images), "--out", str(out), "--export", str(exported[0])]) == 0
+    preds = read_records(out / "labels.jsonl", root=generated_images[0].parent, check_images=True, allow_empty=True)
+    assert [p.image for p in preds] == [p.name for p in generated_images]
+    for pred, path in zip(preds, generated_images, strict=True):
+        overlay = cv2.imread(str(out / "overlays" / f"{path.stem}.png"))
+        assert overlay is not None and overlay.shape == cv2.imread(str(path)).shape
+        assert (pred.width, pred.height) == (320, 240)
+        ids = set(pred.box_ids.tolist())
+        assert all(v in ids and w in ids for v, w, _ in pred.relations)
+
+
+def test_infer_on_a_dataset_matches_the_evaluate_rows(upstream, exported, evaluated, tmp_path):
+    for method in ("deepword", "logic", "prior"):
+        out = tmp_path / method
+        argv = ["--dataset", str(upstream["data"]), "--out", str(out), "--method", method, "--overlays", "2",
+                "--export", str(exported[0]), "--evaluate", str(evaluated)]
+        assert infer(argv) == 0
+        got = {r.image: r for r in read_records(out / "labels.jsonl", root=upstream["data"])}
+        want = read_records(evaluated / "predictions" / f"gt_{method}.jsonl", root=upstream["data"])
+        assert want and all(got[w.image].relations == w.relations for w in want)
+        assert all(got[w.image].wheel_pairs == w.wheel_pairs for w in want)
+        overlays = sorted((out / "overlays").iterdir())
+        assert len(overlays) == 2
+        rec = next(iter(got.values()))
+        original = cv2.imread(str(upstream["data"] / rec.image))
+        drawn = cv2.imread(str(out / "overlays" / (Path(rec.image).with_suffix("").as_posix().replace("/", "__") + ".png")))
+        assert drawn.shape == original.shape and np.abs(drawn.astype(int) - original).sum() > 0  # boxes drawn
+
+
+def test_infer_with_detected_boxes_on_a_dataset(upstream, exported, tmp_path):
+    argv = ["infer", "--dataset", str(upstream["data"]), "--detect", "--out", str(tmp_path), "--export", str(exported[0])]
+    assert deepword(argv) == 0
+    preds = read_records(tmp_path / "labels.jsonl", root=upstream["data"], allow_empty=True)
+    gts = read_records(upstream["data"] / "labels.jsonl")
+    assert len(preds) == len(gts)
+    assert all(len(p.boxes) == 0 or (p.scores < 1).all() for p in preds)  # detector scores, not the annotation's
+
+
+def test_infer_path_never_imports_torch(exported, generated_images, tmp_path):
+    code = ("import sys; from stages.cli import main; "
+            f"rc = main(['infer', {str(generated_images[0])!r}, '--out', {str(tmp_path)!r}, '--export', {str(exported[0])!r}]); "
+            "assert rc == 0, rc; loaded = [m for m in ('torch', 'lightning') if m in sys.modules]; "
+            "assert not loaded, loaded")
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "labels.jsonl").is_file()
+
+
+def test_unreadable_image_is_a_clear_error(exported, tmp_path, capsys):
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\nnot really")
+    assert infer([str(bad), "--out", str(tmp_path / "o"), "--export", str(exported[0])]) == 2
+    err = capsys.readouterr().err
+    assert "broken.png" in err and "cannot read" in err and "Traceback" not in err
+
+
+def test_dataset_that_fails_validation_is_a_clear_error(exported, upstream, tmp_path, capsys):
+    root = tmp_path / "bad"
+    root.mkdir()
+    lines = (upstream["data"] / "labels.jsonl").read_text().splitlines()
+    record = json.loads(lines[1])
+    record["boxes"][0][5] = 7  # no such class
+    (root / "labels.jsonl").write_text("\n".join([lines[0], json.dumps(record)]) + "\n")
+    assert infer(["--dataset", str(root), "--out", str(tmp_path / "o"), "--export", str(exported[0])]) == 2
+    err = capsys.readouterr().err
+    assert "labels.jsonl:2" in err and "Traceback" not in err
+
+
+def test_baseline_without_fitted_thresholds_is_a_clear_error(exported, upstream, tmp_path, capsys):
+    argv = ["--dataset", str(upstream["data"]), "--out", str(tmp_path), "--method", "logic", "--export", str(exported[0])]
+    assert infer(argv) == 2
+    assert "baselines.json" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # MLflow creates a sqlite store (~20 s on 2 busy cores)
+def test_run_id_resolves_to_the_runs_cache_entries(upstream, exported, evaluated, tmp_path, monkeypatch, capsys):
+    """A pipeline-like MLflow record (parent run, stage child runs tagged with cache keys) and a cache
+    directory laid out as the engine's: --run finds the export and evaluate entries; the newest run is
+    the default."""
+    import shutil
+
+    from mlflow.tracking import MlflowClient
+
+    from stages.export.resolve import stage_dirs
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.create_experiment("deepword")
+    cache = tmp_path / "cache"
+    parent = client.create_run(exp, tags={"profile": "smoke"}).info.run_id
+    client.log_param(parent, "pipeline.cache_dir", str(cache))
+    for stage, src in (("export", exported[0]), ("evaluate", evaluated)):
+        shutil.copytree(src, cache / stage / f"key{stage}" / "out")
+        child = client.create_run(exp, tags={"mlflow.parentRunId": parent, "stage": stage, "cache_key": f"key{stage}"})
+        client.set_terminated(child.info.run_id)
+    client.set_terminated(parent)
+    monkeypatch.delenv("DEEPWORD_CACHE", raising=False)
+    run_id, dirs = stage_dirs(None, uri)
+    assert run_id == parent and dirs["export"] == cache / "export" / "keyexport" / "out"
+    out = tmp_path / "o"
+    argv = ["--dataset", str(upstream["data"]), "--out", str(out), "--method", "logic", "--tracking-uri", uri]
+    assert infer([*argv, "--run", parent]) == 0
+    want = read_records(evaluated / "predictions" / "gt_logic.jsonl", root=upstream["data"])
+    got = {r.image: r for r in read_records(out / "labels.jsonl", root=upstream["data"])}
+    assert all(got[w.image].relations == w.relations for w in want)
+    assert infer([*argv, "--run", "0123456789abcdef"]) == 2
+    assert "0123456789abcdef" in capsys.readouterr().err
+
+
+def test_deepword_command_dispatches_and_rejects_unknown_commands(capsys):
+    assert deepword(["frobnicate"]) == 2
+    assert "unknown command" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:
+        deepword(["score", "--help"])
+    assert done.value.code == 0 and "--pred" in capsys.readouterr().out
