@@ -55,8 +55,8 @@ def _traceback_file(exc: BaseException) -> Path | str:
 
 
 def _exit_on_sigterm(signum, _frame) -> None:
-    # Turn `kill` into an exception so a running stage's temp dir is removed and its MLflow run is
-    # marked FAILED (SIGKILL cannot be caught; its leftovers are swept by the next run).
+    # Turn `kill` into an exception so a running stage's MLflow run is marked FAILED; its work dir is
+    # kept (as after SIGKILL, which cannot be caught) so that the next run resumes from it.
     raise SystemExit(128 + signum)
 
 
