@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "config", "watch"}
+STAGE_FIELDS = {"run", "inputs", "config", "watch", "checks"}
 
 
 @dataclass(frozen=True)
@@ -25,6 +26,7 @@ class StageSpec:
     inputs: tuple[str, ...]
     config: tuple[str, ...]
     watch: tuple[str, ...]
+    checks: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (config key, rules): see pipeline.checks
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -61,6 +63,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         inputs=_str_list(name, "inputs", node.get("inputs")),
         config=config,
         watch=_str_list(name, "watch", node.get("watch")),
+        checks=parse_checks(name, node.get("checks")),
     )
 
 

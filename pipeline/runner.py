@@ -18,6 +18,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from pipeline import tracking
 from pipeline.cache import VERIFY_MODES, Cache, Entry, now_iso
+from pipeline.checks import check_values
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import key_parts, resolved_subtree
@@ -208,6 +209,8 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     specs = load_stages(cfg)
     check_stage_names(specs, settings["force"], "pipeline.force")
     selected = select_stages(specs, settings["until"])
+    for name in selected:
+        check_values(cfg, name, specs[name].checks)
     skipped = [n for n in specs if n not in selected]
     if settings["require_server"]:
         check_server(settings["uri"])
