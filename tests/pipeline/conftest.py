@@ -2,7 +2,7 @@
 (``alpha`` -> ``beta``, plus an independent ``gamma``), a tmp cache and a tmp sqlite MLflow store.
 
 The stages are controlled by their config: ``alpha.fail`` raises after writing a file, ``alpha.sleep``
-waits (to be killed or to overlap), ``alpha.counter`` appends a line per computation (to count them
+waits (to be killed or to overlap) unless ``<counter>.nosleep`` exists, ``alpha.counter`` appends a line per computation (to count them
 across processes).
 """
 
@@ -32,14 +32,14 @@ from pipeline.tracking import stage_run_info
 
 def run(cfg, inputs, out_dir):
     (out_dir / "value.txt").write_text(str(scale(cfg.alpha.value)))
-    (out_dir / "artifacts").mkdir()
+    (out_dir / "artifacts").mkdir(exist_ok=True)  # a resumed attempt finds it there
     (out_dir / "artifacts" / "report.md").write_text("# alpha report")
     info = stage_run_info()
     (out_dir / "run_info.txt").write_text(repr(info))
     if cfg.alpha.counter:
         with open(cfg.alpha.counter, "a") as f:
             f.write("computed\\n")
-    if cfg.alpha.sleep:
+    if cfg.alpha.sleep and not Path(cfg.alpha.counter + ".nosleep").exists():
         Path(cfg.alpha.counter + ".started").write_text("x")
         time.sleep(cfg.alpha.sleep)
     if cfg.alpha.fail:

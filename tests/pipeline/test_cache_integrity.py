@@ -27,7 +27,7 @@ def test_stage_raising_leaves_no_entry_and_no_temp_and_rerun_computes(toy):
         run(toy, toy.config(**{"alpha.fail": True}))
     cache = toy.root / "cache"
     assert complete_entries(cache, "a") == []
-    assert not [p for p in (cache / "a").iterdir() if p.name.startswith(".tmp-")]
+    assert not [p for p in (cache / "a").iterdir() if p.name.startswith((".tmp-", ".partial-"))]
     summary = run(toy, toy.config())
     assert summary["stages"]["a"]["hit"] is False
     assert len(complete_entries(cache, "a")) == 1
@@ -74,7 +74,7 @@ def test_write_failure_gives_clear_error_and_leaves_cache_consistent(toy, monkey
         run(toy, toy.config())
     stage_dir = toy.root / "cache" / "a"
     assert complete_entries(toy.root / "cache", "a") == []
-    assert not [p for p in stage_dir.iterdir() if p.name.startswith(".tmp-")]
+    assert not [p for p in stage_dir.iterdir() if p.name.startswith((".tmp-", ".partial-"))]
     monkeypatch.undo()
     monkeypatch.chdir(toy.root)
     assert run(toy, toy.config())["stages"]["a"]["hit"] is False
