@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup pipeline test bench lint ui clean
+.PHONY: setup pipeline test bench lint ui clean ablations compare
 
 setup: $(STAMP)
 
@@ -19,6 +19,12 @@ pipeline: setup
 
 test: setup
 	$(PY) -m pytest $(ARGS)
+
+ablations: setup
+	for t in table1 table2 table3; do $(PY) -m pipeline experiment=$$t $(ARGS) || exit 1; done
+
+compare: setup
+	$(PY) -m pipeline.compare $(ARGS)
 
 bench: setup
 	$(PY) -m benchmarks $(ARGS)
