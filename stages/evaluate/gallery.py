@@ -23,12 +23,25 @@ def disagreements(gts: list[Record], preds: dict[str, dict[str, Record]], limit:
     return [r[-1] for r in sorted(ranked, key=lambda r: r[:3])[:limit]]
 
 
-def _panel(rgb: np.ndarray, rec: Record, label: str) -> np.ndarray:
+def focus_region(rec: Record, margin: int = 24) -> tuple[int, int, int, int]:
+    """The part of the image holding the record's boxes (plus a margin): fisheye objects are small."""
+    if not len(rec.boxes):
+        return 0, 0, rec.width, rec.height
+    x1, y1 = np.floor(rec.xyxy[:, :2].min(axis=0)) - margin
+    x2, y2 = np.ceil(rec.xyxy[:, 2:].max(axis=0)) + margin
+    return int(max(x1, 0)), int(max(y1, 0)), int(min(x2, rec.width)), int(min(y2, rec.height))
+
+
+def _panel(rgb: np.ndarray, rec: Record, label: str, region: tuple[int, int, int, int],
+           height: int = 320) -> np.ndarray:
     import cv2
 
-    from stages.overlay import draw_relations  # Fig. 5 drawing lives in one place
+    from stages.overlay import draw_relations  # Fig. 5 drawing lives in one place (stages/overlay.py)
 
-    img = np.ascontiguousarray(draw_relations(rgb.copy(), rec))
+    x1, y1, x2, y2 = region
+    img = np.ascontiguousarray(draw_relations(rgb.copy(), rec)[y1:y2, x1:x2])
+    scale = height / img.shape[0]
+    img = cv2.resize(img, (max(int(round(img.shape[1] * scale)), 1), height), interpolation=cv2.INTER_LINEAR)
     bar = np.full((22, img.shape[1], 3), 255, dtype=np.uint8)
     cv2.putText(bar, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return np.concatenate([bar, img], axis=0)
@@ -36,19 +49,25 @@ def _panel(rgb: np.ndarray, rec: Record, label: str) -> np.ndarray:
 
 def write_gallery(out_dir: Path, root: Path, gts: list[Record], preds: dict[str, dict[str, Record]],
                   limit: int, min_box_px: float = 0.0) -> list[Path]:
-    """One PNG per chosen image: ground truth, then every method (titled with its wrong wheels), left to right."""
+    """One PNG per chosen image, cropped to its objects: ground truth, then every method (titled with its
+    wrong wheels), tiled left to right and top to bottom."""
     import cv2
+
+    from stages.overlay import contact_sheet
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for k, gt in enumerate(disagreements(gts, preds, limit)):
         rgb = load_image(root, gt)
-        panels = [_panel(rgb, gt, "ground truth")]
+        region = focus_region(gt)
+        panels = [_panel(rgb, gt, "ground truth", region)]
         for name, p in preds.items():
             if gt.image in p:
                 c = score_image(gt, p[gt.image], min_box_px)
-                panels.append(_panel(rgb, p[gt.image], f"{name}: {c.wheels - c.wheels_correct}/{c.wheels} wheels wrong"))
-        sheet = np.concatenate(panels, axis=1)
+                label = f"{name}: {c.wheels - c.wheels_correct}/{c.wheels} wheels wrong"
+                panels.append(_panel(rgb, p[gt.image], label, region))
+        wide = panels[0].shape[1] > 1.5 * panels[0].shape[0]
+        sheet = contact_sheet(panels, cols=2 if wide else len(panels))  # wide crops stack in two columns
         path = out_dir / f"{k:03d}_{Path(gt.image).stem}_{gt.camera}.png"
         cv2.imwrite(str(path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
         written.append(path)

@@ -25,8 +25,9 @@ def plot_priors(path: Path, ratios: dict[str, LabelledRatios], fits: dict[str, t
     fig, axes = plt.subplots(1, len(ratios), figsize=(6 * len(ratios), 4.2), squeeze=False)
     for ax, (kind, lab) in zip(axes[0], ratios.items(), strict=True):
         pos, neg = np.log(np.maximum(lab.pairs, 1e-9)), np.log(np.maximum(lab.non_pairs, 1e-9))
-        both = np.concatenate([pos, neg])
-        lo, hi = (np.percentile(both, [0.5, 99.5]) if len(both) else (-1.0, 1.0))
+        # the range covers both populations' bulk (pairs are far fewer: a joint percentile would cut them)
+        ranges = [np.percentile(x, [0.5, 99.5]) for x in (pos, neg) if len(x)]
+        lo, hi = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else (-1.0, 1.0)
         edges = np.linspace(lo, hi, bins + 1)
         if len(neg):
             ax.hist(neg, bins=edges, density=True, alpha=0.35, color="tab:gray", label=f"non-pairs (n={len(neg)})")
