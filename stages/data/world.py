@@ -332,7 +332,7 @@ class SceneSampler:
         return self._highway_traffic(rng, self.cfg["highway"]["dense_gap"], 0.9)
 
     def _highway_free(self, rng):
-        return self._highway_traffic(rng, self.cfg["highway"]["free_gap"], 0.8)
+        return self._highway_traffic(rng, self.cfg["highway"]["free_gap"], 0.6)
 
 
 def _normalised(weights: dict) -> np.ndarray:
