@@ -28,6 +28,11 @@ MODES = ("prior", "posterior")
 _MIN_RATIO = 1e-9  # a ratio of 0 (coincident centres) has log -inf; clip it to a finite log
 
 
+def log_ratio(ratio) -> np.ndarray:
+    """log of Eq. 2 ratios, a ratio of 0 (coincident centres) clipped to a finite value first."""
+    return np.log(np.maximum(np.asarray(ratio, dtype=np.float64), _MIN_RATIO))
+
+
 @dataclass
 class Mixture1D:
     """A fitted 1-D Gaussian mixture."""
@@ -103,7 +108,7 @@ class PairPrior:
             raise ValueError("posterior mode needs the non-pair mixture and the pair fraction")
 
     def __call__(self, ratio) -> np.ndarray:
-        log_r = np.log(np.maximum(np.asarray(ratio, dtype=np.float64), _MIN_RATIO))
+        log_r = log_ratio(ratio)
         if self.mode == "prior":
             return np.clip(self.pair.pdf(log_r) / self.normaliser, 0.0, 1.0)
         log_a = math.log(self.pair_fraction) + self.pair.log_pdf(log_r)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.priors.mixture import Mixture1D
+from stages.priors.mixture import Mixture1D, log_ratio
 from stages.priors.pairs import LabelledRatios
 
 TITLES = {"wheel_vehicle": "wheel-vehicle (A = vehicle, B = wheel)",
@@ -24,7 +24,7 @@ def plot_priors(path: Path, ratios: dict[str, LabelledRatios], fits: dict[str, t
 
     fig, axes = plt.subplots(1, len(ratios), figsize=(6 * len(ratios), 4.2), squeeze=False)
     for ax, (kind, lab) in zip(axes[0], ratios.items(), strict=True):
-        pos, neg = np.log(np.maximum(lab.pairs, 1e-9)), np.log(np.maximum(lab.non_pairs, 1e-9))
+        pos, neg = log_ratio(lab.pairs), log_ratio(lab.non_pairs)
         # the range covers both populations' bulk (pairs are far fewer: a joint percentile would cut them)
         ranges = [np.percentile(x, [0.5, 99.5]) for x in (pos, neg) if len(x)]
         lo, hi = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else (-1.0, 1.0)

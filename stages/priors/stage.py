@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.priors.mixture import BicFit, Priors, fit_mixture_bic, make_pair_prior
+from stages.priors.mixture import BicFit, Priors, fit_mixture_bic, log_ratio, make_pair_prior
 from stages.priors.pairs import PAIR_TYPES, collect_ratios
 from stages.priors.plot import plot_priors
 from stages.word_format import open_dataset
@@ -29,11 +29,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         lab = ratios[kind]
         if len(lab.pairs) < 2:
             raise ValueError(f"priors: the train split has {len(lab.pairs)} true {kind} pairs; need at least 2")
-        pos = np.log(_subsample(lab.pairs, int(pcfg.max_fit_samples), rng))
+        pos = log_ratio(_subsample(lab.pairs, int(pcfg.max_fit_samples), rng))
         pair_fit: BicFit = fit_mixture_bic(pos, components, seed, int(pcfg.n_init), float(pcfg.reg_covar))
         non_fit = None
         if len(lab.non_pairs) >= 2:
-            neg = np.log(_subsample(lab.non_pairs, int(pcfg.max_fit_samples), rng))
+            neg = log_ratio(_subsample(lab.non_pairs, int(pcfg.max_fit_samples), rng))
             non_fit = fit_mixture_bic(neg, components, seed, int(pcfg.n_init), float(pcfg.reg_covar))
         elif pcfg.mode == "posterior":
             raise ValueError(f"priors: posterior mode needs non-pairs, the train split has {len(lab.non_pairs)} {kind}")

@@ -94,3 +94,12 @@ def test_load_errors_are_clear(tmp_path):
     (tmp_path / "priors.json").write_text("{}")
     with pytest.raises(ValueError, match="not a valid priors file"):
         load_priors(tmp_path)
+
+
+def test_log_ratio_is_finite_for_coincident_centres():
+    from stages.priors.mixture import log_ratio
+
+    out = log_ratio(np.array([0.0, 1.0, np.e]))
+    assert np.isfinite(out).all() and out[1] == 0.0 and out[2] == pytest.approx(1.0)
+    fit = fit_mixture_bic(np.concatenate([_two_gaussians(500), log_ratio(np.zeros(1))]), (1, 3), seed=0)
+    assert np.isfinite(fit.log_likelihood)
