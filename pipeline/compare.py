@@ -1,0 +1,309 @@
+"""``python -m pipeline.compare`` (``make compare``): the paper's Tables 1-3 from the runs in MLflow.
+
+Reads the pipeline's parent runs (one per ``python -m pipeline`` invocation; every stage's metrics are on
+it, DESIGN §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
+that row's configuration, whichever command produced it (a sweep of ``make ablations`` or a single run).
+Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's)
+and logs them as artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment.
+
+Paper numbers: only Table 3's accuracies (logic model 92.91 / 71.83 / 79.90, DeepWORD 99.17 / 94.35 /
+95.14 on easy / hard / mixed) are transcribed; Tables 1-2's paper column says ``n/a`` rather than
+numbers we could not verify.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+SUBSETS = ("easy", "hard", "mixed")
+NOT_AVAILABLE = "n/a"
+COMPARISON_TAG = "kind"
+COMPARISON_KIND = "comparison"
+PARENT_TAG = "mlflow.parentRunId"
+
+# Table 3 accuracy (%) of the DeepWORD paper, per subset.
+PAPER_TABLE3 = {"logic": {"easy": 92.91, "hard": 71.83, "mixed": 79.90},
+                "deepword": {"easy": 99.17, "hard": 94.35, "mixed": 95.14}}
+TABLE3_METHODS = {"logic": "Logic model", "logic_plus": "Logic+ (ours)", "prior": "GMM prior (ours)",
+                  "deepword": "DeepWORD", "deepword_int8": "DeepWORD INT8 (ours)"}
+
+# Relation settings that the ablations change, at their values without any ablation (conf/relation).
+ABLATION_DEFAULTS = {"relation.loss.neg_weight": 1.0, "relation.min_prior": 0.0, "relation.small_mask_px": 0,
+                     "relation.model.gat": True, "relation.adjacency": "prior"}
+
+
+@dataclass(frozen=True)
+class Row:
+    """A table row: the backbone it needs and the ablation settings it changes (the others at defaults).
+    ``changed`` maps a setting to its required value, or to None for 'anything but the default'."""
+
+    label: str
+    backbone: tuple[str, int | None, int | None]   # name, input_size, expansion (None: any)
+    changed: dict = field(default_factory=dict)
+
+
+CONV_FC = ("conv_fc", 28, 1)
+TABLE1 = (Row("Conv+fc", CONV_FC), Row("ResNet-18", ("resnet18", None, None)))
+TABLE2 = (Row("Conv+fc", CONV_FC),
+          Row("Neg0.1", CONV_FC, {"relation.loss.neg_weight": 0.1}),
+          Row("-Neg", CONV_FC, {"relation.min_prior": None}),
+          Row("-Sma", CONV_FC, {"relation.small_mask_px": None}),
+          Row("56", ("conv_fc", 56, 1)),
+          Row("56_ex_4", ("conv_fc", 56, 4)))
+TABLE3_ROW = Row("DeepWORD (default)", ("conv_fc", 56, 4))
+
+ACC_METRIC = "eval.gt.deepword.mixed.wheel_acc"
+IMAGE_ACC_METRIC = "eval.gt.deepword.mixed.image_acc"
+LATENCY_METRIC = "export.relation.ms_per_img_b1"
+PARAMS_METRIC = "relation.params"
+
+
+def _value(text: str | None):
+    """A flattened config value back to Python (the engine logs non-strings as JSON)."""
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def matches(row: Row, params: dict[str, str]) -> bool:
+    name, size, expansion = row.backbone
+    if _value(params.get("relation.backbone.name")) != name:
+        return False
+    if size is not None and _value(params.get("relation.backbone.input_size")) != size:
+        return False
+    if expansion is not None and _value(params.get("relation.backbone.expansion")) != expansion:
+        return False
+    for key, default in ABLATION_DEFAULTS.items():
+        value = _value(params.get(key))
+        if key not in row.changed:
+            if value != default:
+                return False
+        elif row.changed[key] is None:
+            if value == default:
+                return False
+        elif value != row.changed[key]:
+            return False
+    return True
+
+
+@dataclass
+class RunRecord:
+    run_id: str
+    name: str
+    start_time: int
+    params: dict[str, str]
+    metrics: dict[str, float]
+    tags: dict[str, str]
+
+
+def load_runs(client, experiment_id: str, profile: str | None) -> list[RunRecord]:
+    """Finished pipeline parent runs, newest first (comparison runs and stage child runs left out)."""
+    from mlflow.entities import ViewType
+
+    runs, token = [], None
+    while True:
+        page = client.search_runs([experiment_id], filter_string="attributes.status = 'FINISHED'",
+                                  run_view_type=ViewType.ACTIVE_ONLY, max_results=1000,
+                                  order_by=["attributes.start_time DESC"], page_token=token)
+        for r in page:
+            tags = r.data.tags
+            if PARENT_TAG in tags or tags.get(COMPARISON_TAG) == COMPARISON_KIND:
+                continue
+            if profile is not None and tags.get("profile") != profile:
+                continue
+            runs.append(RunRecord(r.info.run_id, r.info.run_name or "", r.info.start_time, dict(r.data.params),
+                                  dict(r.data.metrics), dict(tags)))
+        token = page.token
+        if not token:
+            return runs
+
+
+def pick(runs: list[RunRecord], row: Row, needed: str) -> RunRecord | None:
+    """The newest run of ``row``'s configuration that has the metric ``needed``."""
+    for run in runs:  # newest first
+        if needed in run.metrics and matches(row, run.params):
+            return run
+    return None
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return NOT_AVAILABLE
+    if isinstance(value, float):
+        return f"{value:.2f}"
+    return str(value)
+
+
+@dataclass
+class Table:
+    title: str
+    header: list[str]
+    rows: list[list]          # cells: str, float or None (shown as n/a)
+    notes: list[str]
+
+    def markdown(self) -> str:
+        lines = [f"## {self.title}", "", "| " + " | ".join(self.header) + " |",
+                 "|" + "|".join("---" for _ in self.header) + "|"]
+        lines += ["| " + " | ".join(_fmt(c) for c in row) + " |" for row in self.rows]
+        return "\n".join(lines + [""] + [f"- {n}" for n in self.notes] + [""])
+
+    def write_csv(self, path: Path) -> None:
+        with path.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(self.header)
+            writer.writerows([["" if c is None else c for c in row] for row in self.rows])
+
+
+def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord]) -> tuple[Table, dict]:
+    header = ["Row", "params", "ms/img b1 (ours)", "ms/img b1 (paper)", "wheel_acc mixed (ours)",
+              "image_acc mixed (ours)", "accuracy (paper)", "run"]
+    out, used = [], {}
+    for row in rows:
+        run = pick(runs, row, ACC_METRIC)
+        m = run.metrics if run else {}
+        params = m.get(PARAMS_METRIC)
+        out.append([row.label, None if params is None else int(params), m.get(LATENCY_METRIC), None,
+                    m.get(ACC_METRIC), m.get(IMAGE_ACC_METRIC), None, run.name if run else NOT_AVAILABLE])
+        used[row.label] = run.run_id if run else None
+    notes = ["Ours: ground-truth boxes, mixed test subset (DESIGN §7); latency: onnxruntime, batch 1, "
+             "this machine.",
+             "Paper column n/a: the paper's figures for this table are not transcribed here (unverified).",
+             "A row shows n/a when no finished run of its configuration with evaluation metrics is in "
+             "the experiment: run `make ablations`."]
+    return Table(title, header, out, notes), used
+
+
+def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
+    needed = "eval.gt.logic.mixed.wheel_acc"
+    run = next((r for r in runs if needed in r.metrics and _value(r.params.get("experiment_name")) == "table3"),
+               None) or pick(runs, TABLE3_ROW, needed)
+    m = run.metrics if run else {}
+    header = ["Method"]
+    for s in SUBSETS:
+        header += [f"{s} wheel_acc (ours)", f"{s} image_acc (ours)", f"{s} accuracy (paper)"]
+    rows = []
+    for method, label in TABLE3_METHODS.items():
+        cells = [label]
+        for s in SUBSETS:
+            cells += [m.get(f"eval.gt.{method}.{s}.wheel_acc"), m.get(f"eval.gt.{method}.{s}.image_acc"),
+                      PAPER_TABLE3.get(method, {}).get(s)]
+        if any(c is not None for c in cells[1:]):
+            rows.append(cells)
+    notes = [f"Ours: run {run.name!r} ({run.run_id}), ground-truth boxes." if run else
+             "No finished run with evaluation metrics: run `make ablations` (or `make pipeline`).",
+             "The paper does not say whether its accuracy is per wheel or per image: both are shown."]
+    return Table("Table 3: logic model vs DeepWORD on easy / hard / mixed", header, rows, notes), \
+        {"table3": run.run_id if run else None}
+
+
+def bar_chart(tables: list[Table], path: Path) -> None:
+    """One panel per table: our accuracy beside the paper's where the paper's is known."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    for ax, table in zip(axes[:2], tables[:2], strict=True):
+        labels = [r[0] for r in table.rows]
+        ours = [np.nan if r[4] is None else r[4] for r in table.rows]
+        ax.bar(labels, ours, color="tab:blue", label="ours (wheel_acc, mixed)")
+        for i, v in enumerate(ours):
+            ax.text(i, 1 if np.isnan(v) else v + 1, NOT_AVAILABLE if np.isnan(v) else f"{v:.1f}",
+                    ha="center", fontsize=8)
+        ax.set_title(table.title.split(":")[0] + " (paper: n/a)")
+        ax.set_ylim(0, 118)
+        ax.set_ylabel("accuracy (%)")
+        ax.tick_params(axis="x", rotation=30)
+        ax.legend(loc="upper left", fontsize=8)
+    ax = axes[2]
+    t3 = {r[0]: r for r in tables[2].rows}
+    x = np.arange(len(SUBSETS))
+    bars = [(f"{TABLE3_METHODS[m]} {who}", m, who) for m in ("logic", "deepword") for who in ("ours", "paper")]
+    width = 0.8 / len(bars)
+    colours = {"logic": ("tab:orange", "navajowhite"), "deepword": ("tab:blue", "lightsteelblue")}
+    for i, (label, method, who) in enumerate(bars):
+        row = t3.get(TABLE3_METHODS[method])
+        values = [np.nan] * len(SUBSETS)
+        if who == "paper":
+            values = [PAPER_TABLE3[method][s] for s in SUBSETS]
+        elif row is not None:
+            values = [np.nan if row[1 + 3 * j] is None else row[1 + 3 * j] for j in range(len(SUBSETS))]
+        ax.bar(x + (i - (len(bars) - 1) / 2) * width, values, width,
+               color=colours[method][0 if who == "ours" else 1], label=label)
+    ax.set_xticks(x, SUBSETS)
+    ax.set_ylim(0, 118)
+    ax.set_title("Table 3 (wheel_acc ours vs paper accuracy)")
+    ax.legend(loc="upper left", fontsize=8, ncol=2)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True) -> dict:
+    """Build the three tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    found = client.get_experiment_by_name(experiment)
+    if found is None:
+        raise SystemExit(f"error: no MLflow experiment {experiment!r} in {uri}; run the pipeline first")
+    runs = load_runs(client, found.experiment_id, profile)
+    t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs)
+    t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs)
+    t3, used3 = table3(runs)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tables = [t1, t2, t3]
+    for i, table in enumerate(tables, start=1):
+        (out_dir / f"table{i}.md").write_text(table.markdown())
+        table.write_csv(out_dir / f"table{i}.csv")
+    scope = f"profile {profile}" if profile else "all profiles"
+    (out_dir / "comparison.md").write_text(
+        f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
+        + "\n".join(t.markdown() for t in tables))
+    bar_chart(tables, out_dir / "comparison.png")
+    sources = {f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
+    result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
+    if log:
+        run = client.create_run(found.experiment_id, run_name="comparison",
+                                tags={COMPARISON_TAG: COMPARISON_KIND, "profile": profile or "all"})
+        client.log_batch(run.info.run_id, params=[_param(k, v) for k, v in sources.items()])
+        client.log_artifacts(run.info.run_id, str(out_dir))
+        client.set_terminated(run.info.run_id)
+        result["run_id"] = run.info.run_id
+    return result
+
+
+def _param(key: str, value):
+    from mlflow.entities import Param
+
+    return Param(f"source.{key}".replace("+", "plus"), value or NOT_AVAILABLE)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.compare", description=__doc__.split("\n")[0])
+    parser.add_argument("--tracking-uri", default=os.environ.get("MLFLOW_TRACKING_URI", "sqlite:///mlflow.db"))
+    parser.add_argument("--experiment", default="deepword")
+    parser.add_argument("--profile", default=None, help="only runs of this profile (default: all)")
+    parser.add_argument("--out", type=Path, default=Path("outputs/comparison"))
+    parser.add_argument("--no-log", action="store_true", help="do not log a comparison run to MLflow")
+    args = parser.parse_args(argv)
+    result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log)
+    print((args.out / "comparison.md").read_text())
+    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, comparison.md, comparison.png"
+          + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""Shared by the experiment tests: the real Hydra config composed with overrides, and subprocess runs of
+the pipeline on the smoke profile shrunk further (tiny data, a few training steps) into tmp dirs."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
+
+REPO = Path(__file__).resolve().parents[2]
+CONF = REPO / "conf"
+
+# The smoke profile, smaller still: enough images for every split and subset, one short epoch each.
+TINY = ["profile=smoke", "relation.train.limit_train_images=12",
+        "relation.train.limit_val_images=8", "detector.limit_train_batches=1", "detector.limit_val_batches=1",
+        "eval.gallery_images=2", "eval.fit_images=40"]
+
+
+def compose_config(overrides: list[str]) -> dict:
+    """The resolved root config (a plain dict) for ``overrides``, as the pipeline would see it."""
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+            cfg = compose("config", overrides=overrides)
+            return OmegaConf.to_container(cfg, resolve=True)
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
+                 env: dict | None = None) -> subprocess.CompletedProcess:
+    """``python -m pipeline`` in a subprocess from the repo root, cache and Hydra outputs under ``tmp``."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={tmp / 'cache'}",
+            f"tracking.uri={uri}", f"hydra.run.dir={tmp / 'run'}", f"hydra.sweep.dir={tmp / 'sweep'}"]
+    full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1", **(env or {})}
+    full_env.pop("MLFLOW_TRACKING_URI", None)
+    proc = subprocess.run(args, cwd=REPO, env=full_env, capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        pytest.fail(f"pipeline {overrides} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
+    return proc
+
+
+@pytest.fixture(scope="session")
+def smoke_store(tmp_path_factory) -> dict:
+    """One whole tiny smoke pipeline run (every stage), shared by the tests that read a real store:
+    {"uri", "dir", "db"}."""
+    tmp = tmp_path_factory.mktemp("smoke_run")
+    db = tmp / "mlflow.db"
+    uri = f"sqlite:///{db}"
+    run_pipeline(tmp, TINY, uri)
+    return {"uri": uri, "dir": tmp, "db": db}

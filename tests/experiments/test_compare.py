@@ -1,0 +1,96 @@
+"""``pipeline.compare`` on a store filled the way the engine fills it: parent runs whose params are the
+flattened real config of each table row, plus runs that must be ignored (children, comparisons)."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+from conftest import compose_config
+
+from pipeline.compare import PAPER_TABLE3, compare, main
+from pipeline.mlflow_ops import MlflowOps
+from pipeline.tracker import flatten_params
+
+
+def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str) -> str:
+    params = flatten_params(compose_config(overrides))
+    run_id = ops.create_run(name, {"profile": "smoke", "seed": "42", "git_commit": "abc"})
+    ops.log(run_id, metrics=metrics, params=params)
+    ops.end(run_id)
+    return run_id
+
+
+def _eval(acc: float) -> dict:
+    metrics = {"export.relation.ms_per_img_b1": 1.5, "relation.params": 12345.0}
+    for method, base in (("deepword", acc), ("logic", acc - 20)):
+        for i, s in enumerate(("easy", "hard", "mixed")):
+            metrics[f"eval.gt.{method}.{s}.wheel_acc"] = base - i
+            metrics[f"eval.gt.{method}.{s}.image_acc"] = base - 10 - i
+    return metrics
+
+
+@pytest.fixture()
+def store(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    ops = MlflowOps(uri, "deepword")
+    ids = {
+        "conv_fc": _parent(ops, ["relation/backbone=conv_fc"], _eval(80.0), "smoke relation/backbone=conv_fc"),
+        "resnet18": _parent(ops, ["relation/backbone=resnet18"], _eval(85.0), "smoke relation/backbone=resnet18"),
+        "neg0.1": _parent(ops, ["experiment=table2", "table2_row=neg0.1"], _eval(70.0), "smoke table2_row=neg0.1"),
+        "default": _parent(ops, ["experiment=table3"], _eval(90.0), "smoke experiment=table3"),
+    }
+    # Must be ignored: a newer -Sma run that stopped before evaluation, a child run carrying a row's
+    # params, and a previous comparison run.
+    _parent(ops, ["table2_row=small_mask"], {"relation.params": 1.0}, "smoke until relation")
+    child = ops.create_run("relation", {"stage": "relation"}, parent_id=ids["resnet18"])
+    ops.log(child, metrics=_eval(10.0), params=flatten_params(compose_config(["relation/backbone=resnet18"])))
+    ops.end(child)
+    other = ops.create_run("comparison", {"kind": "comparison"})
+    ops.log(other, metrics=_eval(5.0), params=flatten_params(compose_config(["relation/backbone=conv_fc"])))
+    ops.end(other)
+    return uri, ids
+
+
+def _csv(path):
+    with path.open() as f:
+        return {row[0]: row for row in list(csv.reader(f))[1:]}
+
+
+def test_tables_pick_each_rows_run_and_set_paper_numbers_beside_ours(store, tmp_path):
+    uri, ids = store
+    out = tmp_path / "cmp"
+    result = compare(uri, "deepword", out)
+
+    t1 = _csv(out / "table1.csv")
+    assert float(t1["Conv+fc"][4]) == 78.0 and float(t1["ResNet-18"][4]) == 83.0  # mixed = base - 2
+    assert t1["ResNet-18"][3] == ""  # paper latency unknown: left empty, shown n/a in markdown
+    t2 = _csv(out / "table2.csv")
+    assert float(t2["Neg0.1"][4]) == 68.0
+    assert float(t2["Conv+fc"][4]) == 78.0          # the Table 1 run serves Table 2's base row too
+    assert t2["-Sma"][4] == "" and t2["56"][4] == ""  # no evaluated run of these configurations
+    assert result["sources"]["table1.ResNet-18"] == ids["resnet18"]
+    assert result["sources"]["table3"] == ids["default"]
+
+    t3 = _csv(out / "table3.csv")
+    assert [float(v) for v in t3["DeepWORD"][1:4]] == [90.0, 80.0, PAPER_TABLE3["deepword"]["easy"]]
+    assert float(t3["Logic model"][9]) == PAPER_TABLE3["logic"]["mixed"] == 79.90
+    md = (out / "table2.md").read_text()
+    assert "| -Sma | n/a |" in md and "n/a" in (out / "table1.md").read_text()
+    assert (out / "comparison.png").stat().st_size > 10_000
+
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    logged = {a.path for a in client.list_artifacts(result["run_id"])}
+    assert {"table1.md", "table2.csv", "table3.md", "comparison.md", "comparison.png"} <= logged
+    assert client.get_run(result["run_id"]).data.tags["kind"] == "comparison"
+
+
+def test_profile_filter_and_missing_experiment(store, tmp_path, capsys):
+    uri, _ = store
+    result = compare(uri, "deepword", tmp_path / "none", profile="full", log=False)
+    assert result["runs_considered"] == 0 and result["run_id"] is None
+    assert "| DeepWORD | n/a | n/a | 99.17 |" in (tmp_path / "none" / "table3.md").read_text()
+    with pytest.raises(SystemExit, match="no MLflow experiment 'nope'"):
+        main(["--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path / "x")])
