@@ -49,9 +49,17 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
     """Dynamic INT8 quantisation (weights int8 offline, activations per call). Only MatMul/Gemm by
     default: onnxruntime's ConvInteger kernels are several times slower than its float convolutions,
     while the fully connected layers hold most of the weights."""
+    import logging
+
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
-    quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, op_types_to_quantize=list(op_types))
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)  # the quantiser logs every tensor it skips on the root logger
+    try:
+        quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, op_types_to_quantize=list(op_types))
+    finally:
+        root.setLevel(level)
     return dst
 
 
