@@ -7,6 +7,8 @@ only when an instance is created: it is the slowest import of a no-op run.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import time
 from pathlib import Path
 
@@ -14,13 +16,26 @@ MAX_PARAMS_PER_BATCH = 100
 MAX_METRICS_PER_BATCH = 1000
 
 
+@contextlib.contextmanager
+def _sqlite_init_lock(uri: str):
+    """MLflow creates and migrates a new sqlite store's tables on first use, and two processes doing that
+    at once fail ("duplicate column name"): pipelines started together take turns opening the store."""
+    if not uri.startswith("sqlite:///"):
+        yield
+        return
+    with open(f"{uri.removeprefix('sqlite:///')}.lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
 class MlflowOps:
     def __init__(self, uri: str, experiment: str):
         from mlflow.tracking import MlflowClient
 
         self.uri = uri
-        self.client = MlflowClient(tracking_uri=uri)
-        self.experiment_id = self._experiment_id(experiment)
+        with _sqlite_init_lock(uri):
+            self.client = MlflowClient(tracking_uri=uri)
+            self.experiment_id = self._experiment_id(experiment)
 
     def _experiment_id(self, name: str) -> str:
         found = self.client.get_experiment_by_name(name)
