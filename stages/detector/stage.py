@@ -83,7 +83,9 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()
-    trainer.fit(module, datamodule=data)
+    # After a crash the engine hands this stage the same work dir again: resume from its last checkpoint.
+    last = out_dir / "checkpoints" / "last.ckpt"
+    trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
     train_seconds = time.perf_counter() - started
 
     net = build_centernet(mcfg)
