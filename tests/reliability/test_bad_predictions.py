@@ -57,3 +57,19 @@ def test_bad_prediction_line_is_refused_naming_file_line_and_field(tmp_path, bad
     err = info.value
     assert err.file.endswith(DETECTOR_PREDICTIONS) and err.line == 2 and err.field == field
     assert message in err.message
+
+
+@pytest.mark.parametrize("bad_line, field, message", [
+    (prediction()[:-5], "<json>", "malformed JSON"),
+    (prediction(boxes=[[1, 1, 15, 11, 1.5, 0, 0]]), "boxes[0]", "score must be in [0, 1]"),
+    (prediction(image="images/rear/000099.png"), "image", "not an image of the ground-truth dataset"),
+])
+def test_score_command_refuses_bad_predictions_with_exit_2_and_location(tmp_path, capsys, bad_line, field, message):
+    from stages.evaluate.score import main as score_main
+
+    root = write_dataset(Dataset(), tmp_path / "data")
+    pred = tmp_path / "pred.jsonl"
+    pred.write_text(prediction() + "\n" + bad_line + "\n")
+    assert score_main(["--gt", str(root), "--pred", str(pred)]) == 2
+    err = capsys.readouterr().err
+    assert f"pred.jsonl:2: field '{field}'" in err and message in err and "Traceback" not in err
