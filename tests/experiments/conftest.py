@@ -63,3 +63,49 @@ def smoke_store(tmp_path_factory) -> dict:
     uri = f"sqlite:///{db}"
     run_pipeline(tmp, TINY, uri)
     return {"uri": uri, "dir": tmp, "db": db}
+
+
+class MlflowServer:
+    """A real ``mlflow server`` (or ``mlflow ui``) on 127.0.0.1 over a sqlite store, artifacts in ``tmp``;
+    started in its own process group so that stopping it also stops its web workers."""
+
+    def __init__(self, tmp: Path, command: str = "server", backend_uri: str | None = None):
+        self.port = free_port()
+        self.uri = f"http://127.0.0.1:{self.port}"
+        self.backend_uri = backend_uri or f"sqlite:///{tmp / 'server.db'}"
+        exe = Path(sys.executable).parent / "mlflow"
+        args = [str(exe), command, "--host", "127.0.0.1", "--port", str(self.port),
+                "--backend-store-uri", self.backend_uri, "--workers", "1"]
+        if command == "server":
+            args += ["--artifacts-destination", str(tmp / "artifacts")]
+        self.log = (tmp / f"mlflow_{command}.log").open("w")
+        self.proc = subprocess.Popen(args, cwd=tmp, stdout=self.log, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+
+    def wait_ready(self, timeout: float = 120) -> None:
+        import time
+        import urllib.request
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"mlflow exited with {self.proc.returncode}: {Path(self.log.name).read_text()[-3000:]}")
+            try:
+                with urllib.request.urlopen(self.uri + "/health", timeout=2) as r:
+                    if r.status == 200:
+                        return
+            except OSError:
+                time.sleep(0.5)
+        raise RuntimeError(f"mlflow not ready after {timeout} s: {Path(self.log.name).read_text()[-3000:]}")
+
+    def stop(self) -> None:
+        import signal
+
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        self.log.close()

@@ -1,0 +1,65 @@
+"""`tracking=server` for real: a `mlflow server` on 127.0.0.1 (sqlite backend and artifact store in tmp),
+the smoke pipeline (data + priors) run against it in a subprocess, and the runs read back over HTTP."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import MlflowServer, run_pipeline
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture()
+def server(tmp_path):
+    srv = MlflowServer(tmp_path)
+    try:
+        srv.wait_ready()
+        yield srv
+    finally:
+        srv.stop()
+
+
+def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_server(server, tmp_path):
+    proc = run_pipeline(tmp_path / "job", ["profile=smoke", "pipeline.until=priors", "tracking=server"],
+                        server.uri)
+    assert "MLflow run" in proc.stdout
+
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=server.uri)
+    exp = client.get_experiment_by_name("deepword")
+    assert exp is not None
+    runs = client.search_runs([exp.experiment_id])
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(parents) == 1
+    parent = parents[0]
+    children = {r.info.run_name: r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
+    assert set(children) == {"data", "priors"}
+    assert parent.data.tags["profile"] == "smoke" and parent.data.tags["seed"] == "42"
+    assert parent.data.metrics["data.train.images"] > 0
+    assert "priors.wheel_vehicle.components" in children["priors"].data.metrics
+    assert parent.data.params["tracking.uri"] == server.uri
+
+    # Artifacts went through the server into its artifact store (--artifacts-destination).
+    listed = [a.path for a in client.list_artifacts(children["priors"].info.run_id)]
+    png = next(p for p in listed if p.endswith(".png"))
+    local = client.download_artifacts(children["priors"].info.run_id, png, str(tmp_path / "dl"))
+    with open(local, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    stored = list((tmp_path / "artifacts").rglob(png.split("/")[-1]))
+    assert stored, "the artifact is in the server's artifact store"
+
+
+def test_unreachable_server_fails_before_any_stage(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import REPO, free_port
+
+    port = free_port()
+    proc = subprocess.run([sys.executable, "-m", "pipeline", "profile=smoke", "tracking=server",
+                           f"tracking.uri=http://127.0.0.1:{port}", f"pipeline.cache_dir={tmp_path / 'cache'}",
+                           f"hydra.run.dir={tmp_path / 'run'}"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    assert "is not reachable" in proc.stderr and "no stage was run" in proc.stderr
+    assert not (tmp_path / "cache" / "data").exists()
