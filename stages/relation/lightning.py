@@ -86,11 +86,15 @@ class RelationCounts(Metric):
 
 def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, pos_weight: float,
                 neg_weight: float) -> torch.Tensor:
-    """Mean over masked pairs of pos_weight (s - 1)^2 on true pairs and neg_weight s^2 on the others."""
-    t = target.to(scores.dtype)
-    err = pos_weight * t * (scores - 1.0) ** 2 + neg_weight * (1.0 - t) * scores**2
+    """pos_weight x mean over masked true pairs of (s - 1)^2 + neg_weight x mean over masked non-pairs of
+    s^2. Averaging each class on its own keeps the many non-pairs (a wheel has one owner among all
+    vehicles of a hard image) from drowning the positives, which otherwise stalls training at s = 0."""
     m = mask.to(scores.dtype)
-    return (err * m).sum() / m.sum().clamp_min(1.0)
+    pos = target.to(scores.dtype) * m
+    neg = m - pos
+    pos_term = (pos * (scores - 1.0) ** 2).sum() / pos.sum().clamp_min(1.0)
+    neg_term = (neg * scores**2).sum() / neg.sum().clamp_min(1.0)
+    return pos_weight * pos_term + neg_weight * neg_term
 
 
 def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
