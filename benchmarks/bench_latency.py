@@ -9,7 +9,8 @@ data-dependent control flow; the static relation model always runs max_objects n
 hold for a trained model too and the benchmark needs no pipeline run. The relation inputs are random
 graphs padded to max_objects (static model, as an embedded runtime runs it); the dynamic model is timed
 at object counts 4..24. onnxruntime and PyTorch eager run in this process with the same intra-op thread
-count: the ratio is the figure to trust on a shared machine, the absolute times depend on the load.
+count: the ratio is the figure to trust on a shared machine, the absolute times depend on the load. The
+"CPU time" rows (one thread, that thread's CPU time) estimate the time on an idle core.
 The trained model's figures of a pipeline run are the export stage's metrics (artifacts/latency.md).
 """
 
@@ -59,7 +60,7 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
     from omegaconf import OmegaConf
 
     from stages.detector.model import build_centernet, model_config
-    from stages.export.latency import batches, onnx_ms, torch_ms
+    from stages.export.latency import batches, cpu_ms, onnx_ms, torch_ms
     from stages.export.onnx_export import DetectorGraph, RelationGraph, export_detector, export_relation
     from stages.export.runtime import DETECTOR_INPUT, ort_session, pad_graphs
     from stages.relation.inputs import InputConfig
@@ -90,6 +91,9 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
             "relation.torch_ms_per_10img_b10": torch_ms(RelationGraph(net).eval(), batches(padded, 10), runs, warmup,
                                                         threads),
             "relation.dynamic_ms_per_img_b1": onnx_ms(dynamic, real, runs, warmup),
+            "relation.cpu_ms_per_img_b1": cpu_ms(Path(tmp) / "s.onnx", padded, runs, warmup),
+            "relation.cpu_ms_per_10img_b10": cpu_ms(Path(tmp) / "s.onnx", batches(padded, 10), runs, warmup),
+            "relation.dynamic_cpu_ms_per_img_b1": cpu_ms(Path(tmp) / "d.onnx", real, runs, warmup),
             "relation.params": float(count_parameters(net)),
             "relation.size_mb": (Path(tmp) / "s.onnx").stat().st_size / 2**20,
             "detector.ms_per_img_b1": onnx_ms(detector, det_feeds, runs, warmup),
@@ -116,6 +120,10 @@ def table(m: dict[str, float], threads: int, runs: int) -> str:
         f"| relation, PyTorch eager | {m['relation.torch_ms_per_img_b1']:.2f} | {m['relation.torch_ms_per_10img_b10']:.1f} | | |",
         f"| relation, onnxruntime, real counts {OBJECT_COUNTS[0]}-{OBJECT_COUNTS[-1]} "
         f"| {m['relation.dynamic_ms_per_img_b1']:.2f} | | | |",
+        f"| relation, onnxruntime, 1 thread, CPU time (padded) | {m['relation.cpu_ms_per_img_b1']:.2f} "
+        f"| {m['relation.cpu_ms_per_10img_b10']:.1f} | | |",
+        f"| relation, onnxruntime, 1 thread, CPU time (real counts) | {m['relation.dynamic_cpu_ms_per_img_b1']:.2f} "
+        "| | | |",
         f"| detector, onnxruntime | {m['detector.ms_per_img_b1']:.2f} | | {m['detector.params']:.0f} "
         f"| {m['detector.size_mb']:.2f} |",
         f"| detector, PyTorch eager | {m['detector.torch_ms_per_img_b1']:.2f} | | | |",

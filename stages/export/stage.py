@@ -99,7 +99,7 @@ def int8_accuracy_change(ds, out_dir: Path, records: list, graphs: list, min_box
 
 
 def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: int, lat) -> dict[str, float]:
-    from stages.export.latency import batches, onnx_ms, torch_ms
+    from stages.export.latency import batches, cpu_ms, onnx_ms, torch_ms
     from stages.export.onnx_export import RelationGraph
 
     threads, runs, warmup = int(lat.threads), int(lat.runs), int(lat.warmup)
@@ -111,7 +111,11 @@ def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: i
     eager = torch_ms(RelationGraph(net).eval(), padded, runs, warmup, threads)
     dynamic = onnx_ms(ort_session(out_dir / RELATION_FILES["dynamic"], threads), real, runs, warmup)
     int8 = onnx_ms(ort_session(out_dir / RELATION_FILES["int8"], threads), real, runs, warmup)
-    return {"export.relation.ms_per_img_b1": b1, "export.relation.ms_per_10img_b10": b10,
+    cpu = {"cpu_ms_per_img_b1": cpu_ms(out_dir / RELATION_FILES["static"], padded, runs, warmup),
+           "cpu_ms_per_10img_b10": cpu_ms(out_dir / RELATION_FILES["static"], batches(padded, 10), runs, warmup),
+           "dynamic_cpu_ms_per_img_b1": cpu_ms(out_dir / RELATION_FILES["dynamic"], real, runs, warmup)}
+    return {**{f"export.relation.{k}": v for k, v in cpu.items()},
+            "export.relation.ms_per_img_b1": b1, "export.relation.ms_per_10img_b10": b10,
             "export.relation.torch_ms_per_img_b1": eager, "export.relation.speedup_vs_torch": eager / b1,
             "export.relation.dynamic_ms_per_img_b1": dynamic, "export.relation.int8_ms_per_img_b1": int8,
             "export.threads": float(threads), "export.latency_runs": float(runs)}
@@ -141,6 +145,10 @@ def latency_table(m: dict[str, float]) -> str:
         f"| relation INT8, onnxruntime, real object counts | {m['export.relation.int8_ms_per_img_b1']:.2f} | | "
         f"| {m['export.relation.int8.size_mb']:.2f} |",
         f"| relation, PyTorch eager, {threads} threads | {m['export.relation.torch_ms_per_img_b1']:.2f} | | | |",
+        f"| relation, onnxruntime, 1 thread, CPU time, padded | {m['export.relation.cpu_ms_per_img_b1']:.2f} "
+        f"| {m['export.relation.cpu_ms_per_10img_b10']:.1f} | | |",
+        f"| relation, onnxruntime, 1 thread, CPU time, real counts | {m['export.relation.dynamic_cpu_ms_per_img_b1']:.2f} "
+        "| | | |",
         f"| paper (embedded DSP) | {PAPER_MS_PER_IMG_B1} | {PAPER_MS_PER_10IMG_B10} | | |",
         f"| detector, onnxruntime | {m['export.detector.ms_per_img_b1']:.2f} | {m['export.detector.ms_per_10img_b10']:.1f} "
         f"| {m['export.detector.params']:.0f} | {m['export.detector.size_mb']:.2f} |",
