@@ -159,7 +159,9 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                     plan.hit, plan.reason = True, "computed meanwhile by a concurrent pipeline"
             if entry is None:
                 _say(f"Running stage '{name}' ({plan.reason})")
-                run_id = tracker.create_run(name, {"cache": "miss", "cache_key": key, "stage": name}, parent_id)
+                run_id = tracker.create_run(
+                    name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"]}, parent_id
+                )
                 try:
                     entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"])
                 except BaseException:
@@ -172,7 +174,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
         _say(f"Stage '{name}' didn't change, skipping" if plan.reason == "didn't change"
              else f"Stage '{name}': {plan.reason}, using it")
         run_id = tracker.create_run(
-            name, {"cache": "hit", "cache_key": key, "stage": name, "computed_by_run": computed_by}, parent_id
+            name, {"cache": "hit", "cache_key": key, "stage": name, "computed_by_run": computed_by,
+                   **settings["run_tags"]}, parent_id
         )
     else:
         run_id = computed_by
@@ -190,9 +193,23 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
     }
 
 
-def _run_name(cfg: DictConfig, overrides: list[str]) -> str:
-    shown = [o for o in overrides if not o.startswith("profile=")]
-    return " ".join([str(cfg.get("profile_name", "pipeline")), *shown])
+def _hydra_choices() -> dict[str, str]:
+    """The config group options this run composed (``relation/backbone`` -> ``conv_fc``), Hydra's own left out."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return {}
+    choices = HydraConfig.get().runtime.choices
+    return {str(g): str(o) for g, o in choices.items() if o is not None and not str(g).startswith("hydra")}
+
+
+def _run_name(cfg: DictConfig, overrides: list[str], choices: dict[str, str]) -> str:
+    """Profile, the options of ``pipeline.run_name_groups`` (what tells runs apart in the UI), then the
+    remaining command-line overrides."""
+    groups = [g for g in (cfg.pipeline.get("run_name_groups") or []) if g in choices]
+    named = [f"{g}={choices[g]}" for g in groups]
+    shown = [o for o in overrides if not o.startswith("profile=") and o not in named]
+    return " ".join([str(cfg.get("profile_name", "pipeline")), *named, *shown])
 
 
 def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracking: bool | None = None) -> dict:
@@ -238,7 +255,11 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
         "git_commit": _git_commit(launch_dir),
         "overrides": " ".join(overrides),
     }
-    parent_id = tracker.create_run(_run_name(cfg, overrides), parent_tags)
+    choices = _hydra_choices()
+    parent_tags.update({f"choice.{g}": o for g, o in choices.items()})
+    # Every stage child run carries them too: a child row alone says which seed and code made it.
+    settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
+    parent_id = tracker.create_run(_run_name(cfg, overrides, choices), parent_tags)
     tracker.log(parent_id, params=flatten_params(resolved))
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
