@@ -23,6 +23,14 @@ class CurveHistory(L.Callback):
                 row[key] = float(m[key])
         self.rows.append(row)
 
+    # Saved in every checkpoint: a resumed run keeps its earlier epochs, and under ddp_spawn (training in
+    # child processes) the main process reads the curves back from rank 0's last checkpoint.
+    def state_dict(self) -> dict:
+        return {"rows": list(self.rows)}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        self.rows = list(state_dict["rows"])
+
 
 def plot_curves(rows: list[dict[str, float]], path: Path) -> Path:
     """Two panels: losses (log scale) and val wheel_acc (percent) over epochs."""

@@ -109,6 +109,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if not trainer.is_global_zero:
         return {}
 
+    if not history.rows and last.is_file():  # ddp_spawn: the epochs ran in child processes
+        history.load_state_dict(torch.load(last, map_location="cpu", weights_only=True)["callbacks"][history.state_key])
     best = torch.load(checkpoint.best_model_path or last, map_location="cpu", weights_only=True)
     module.load_state_dict(best["state_dict"])
     net = module.model.cpu().eval()
@@ -116,7 +118,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
 
     torch.save(net.state_dict(), out_dir / WEIGHTS_FILE)
     metrics = {"relation.params": float(count_parameters(net)), "relation.size_mb": size_mb(net),
-               "relation.epochs": float(trainer.current_epoch), "relation.train.images": float(len(train)),
+               "relation.epochs": float(len(history.rows)), "relation.train.images": float(len(train)),
                "relation.train.seconds": time.perf_counter() - started}
     metrics.update({f"relation.val.{k}": float(v) for k, v in val_metrics.items()})
     has_roles = bool((train.role >= 0).any())

@@ -20,7 +20,8 @@ CONF = REPO / "conf"
 # The smoke profile, smaller still: enough images for every split and subset, one short epoch each.
 TINY = ["profile=smoke", "relation.train.limit_train_images=12",
         "relation.train.limit_val_images=8", "detector.limit_train_batches=1", "detector.limit_val_batches=1",
-        "eval.gallery_images=2", "eval.fit_images=40"]
+        "eval.gallery_images=2", "eval.fit_images=40", "export.register=false", "export.latency.runs=2",
+        "export.latency.images=4", "export.parity.detector_images=2"]
 
 
 def compose_config(overrides: list[str]) -> dict:
@@ -41,12 +42,13 @@ def free_port() -> int:
 
 
 def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
-                 env: dict | None = None) -> subprocess.CompletedProcess:
-    """``python -m pipeline`` in a subprocess from the repo root, cache and Hydra outputs under ``tmp``."""
+                 cache: Path | None = None) -> subprocess.CompletedProcess:
+    """``python -m pipeline`` in a subprocess from the repo root, Hydra outputs (and by default the cache)
+    under ``tmp``."""
     tmp.mkdir(parents=True, exist_ok=True)
-    args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={tmp / 'cache'}",
+    args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={cache or tmp / 'cache'}",
             f"tracking.uri={uri}", f"hydra.run.dir={tmp / 'run'}", f"hydra.sweep.dir={tmp / 'sweep'}"]
-    full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1", **(env or {})}
+    full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1"}
     full_env.pop("MLFLOW_TRACKING_URI", None)
     proc = subprocess.run(args, cwd=REPO, env=full_env, capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:

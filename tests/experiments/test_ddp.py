@@ -1,0 +1,45 @@
+"""`trainer=ddp`: the relation network trained by Lightning DDP with 2 CPU processes (gloo), inside a real
+pipeline run in a subprocess (the way users run it). Data and priors come from the shared smoke run's
+cache; the relation stage is a miss because the trainer config is part of its key."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import TINY, run_pipeline
+
+pytestmark = pytest.mark.slow
+
+
+def test_ddp_trains_relation_on_two_cpu_processes_logs_once_and_saves_loadable_weights(smoke_store, tmp_path):
+    import torch
+    from mlflow.tracking import MlflowClient
+
+    db = tmp_path / "ddp.db"
+    uri = f"sqlite:///{db}"
+    proc = run_pipeline(tmp_path, [*TINY, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
+                                   "relation.train.epochs=2", "relation.train.patience=5", "pipeline.until=relation"],
+                        uri, cache=smoke_store["dir"] / "cache")
+    log = proc.stdout + proc.stderr
+    assert "distributed_backend=gloo" in log and "Starting with 2 processes" in log
+
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["stages"]["data"]["hit"] and summary["stages"]["priors"]["hit"]
+    relation = summary["stages"]["relation"]
+    assert not relation["hit"] and relation["metrics"]["relation.epochs"] == 2
+
+    client = MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(parents) == 1, "a second rank must not start a pipeline run of its own"
+    (child,) = [r for r in runs if r.info.run_name == "relation"]
+    # Rank zero alone logs: one value per epoch (a second logging rank would double them).
+    history = client.get_metric_history(child.info.run_id, "val/wheel_acc")
+    assert sorted(m.step for m in history) == sorted({m.step for m in history}) and len(history) == 2
+    assert child.data.metrics["relation.epochs"] == 2
+
+    weights = torch.load(relation["output_dir"] + "/relation.pt", map_location="cpu", weights_only=True)
+    assert weights and all(torch.isfinite(v).all() for v in weights.values() if v.is_floating_point())
+    meta = json.loads(open(relation["output_dir"] + "/relation.json").read())
+    assert len(meta["curves"]) == 2  # the curves trained in the spawned ranks came back
