@@ -3,6 +3,7 @@ before anything downstream runs and before writing its outputs."""
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -18,10 +19,18 @@ REPO = Path(__file__).resolve().parents[2]
 UP_FRONT = sorted(c for c in CASES if CASES[c][4] in ("labels", "files"))
 
 
-def data_cfg(root: Path):
+@functools.cache
+def _word_data_cfg() -> dict:
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["data=word", f"data.root={root}", "profile=smoke"])
-    return OmegaConf.create({"data": OmegaConf.to_container(cfg.data, resolve=True), "seed": cfg.seed})
+        cfg = compose(config_name="config", overrides=["data=word", "data.root=ROOT", "profile=smoke"])
+    return {"data": OmegaConf.to_container(cfg.data), "seed": cfg.seed}
+
+
+def data_cfg(root: Path):
+    """The data stage's config subtree for ``data=word data.root=<root>`` (composed once, then re-rooted)."""
+    cfg = OmegaConf.create(_word_data_cfg())
+    cfg.data.root = str(root)
+    return OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
 
 
 @pytest.mark.parametrize("case", UP_FRONT)

@@ -12,19 +12,8 @@ import time
 
 import pytest
 from harness import complete_entries, run_in_process
-from tiny_dataset import write_tiny_dataset
 
 from pipeline.errors import PipelineError
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    return write_tiny_dataset(tmp_path_factory.mktemp("tiny"))
-
-
-@pytest.fixture(scope="module")
-def tracking_uri(tmp_path_factory):
-    return f"sqlite:///{tmp_path_factory.mktemp('mlflow')}/mlflow.db"
 
 
 def free_port() -> int:

@@ -10,21 +10,10 @@ import pytest
 import torch
 from harness import complete_entries, compose_cfg, run_in_process
 from hydra.errors import MissingConfigException
-from tiny_dataset import write_tiny_dataset
 
 from pipeline.dag import load_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import key_parts
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    return write_tiny_dataset(tmp_path_factory.mktemp("tiny"))
-
-
-@pytest.fixture(scope="module")
-def tracking_uri(tmp_path_factory):
-    return f"sqlite:///{tmp_path_factory.mktemp('mlflow')}/mlflow.db"
 
 
 @pytest.fixture(scope="module")
