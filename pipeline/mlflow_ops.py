@@ -14,6 +14,8 @@ from pathlib import Path
 
 MAX_PARAMS_PER_BATCH = 100
 MAX_METRICS_PER_BATCH = 1000
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
 
 
 @contextlib.contextmanager
@@ -42,7 +44,8 @@ class MlflowOps:
         if found is not None:
             return found.experiment_id
         try:
-            return self.client.create_experiment(name)
+            # The kind makes the MLflow 3 UI open the experiment on its training runs, not on GenAI traces.
+            return self.client.create_experiment(name, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
         except Exception:  # a concurrent pipeline created it first
             found = self.client.get_experiment_by_name(name)
             if found is None:

@@ -14,6 +14,8 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
+from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+
 REPO = Path(__file__).resolve().parents[2]
 CONF = REPO / "conf"
 
@@ -41,11 +43,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def artifacts_beside_store(uri: str, artifacts: Path, experiment: str = "deepword") -> None:
+    """Create the experiment with its artifacts under ``artifacts``: a sqlite store's default artifact
+    root is ``./mlruns`` of the working directory, which would be the repository."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    if client.get_experiment_by_name(experiment) is None:
+        client.create_experiment(experiment, artifact_location=artifacts.as_uri(),
+                                 tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
+
+
 def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
                  cache: Path | None = None) -> subprocess.CompletedProcess:
     """``python -m pipeline`` in a subprocess from the repo root, Hydra outputs (and by default the cache)
     under ``tmp``."""
     tmp.mkdir(parents=True, exist_ok=True)
+    if uri.startswith("sqlite:"):
+        artifacts_beside_store(uri, tmp / "artifacts")
     args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={cache or tmp / 'cache'}",
             f"tracking.uri={uri}", f"hydra.run.dir={tmp / 'run'}", f"hydra.sweep.dir={tmp / 'sweep'}"]
     full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1"}

@@ -28,7 +28,7 @@ def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_serve
 
     client = MlflowClient(tracking_uri=server.uri)
     exp = client.get_experiment_by_name("deepword")
-    assert exp is not None
+    assert exp is not None and exp.tags["mlflow.experimentKind"] == "custom_model_development"
     runs = client.search_runs([exp.experiment_id])
     parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
     assert len(parents) == 1

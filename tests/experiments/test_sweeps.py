@@ -1,0 +1,91 @@
+"""The paper tables as Hydra sweeps: what each experiment sweeps, the parallel launcher, the Table 2 rows'
+resolved relation settings, and a real two-job sweep whose summary shows the shared stages computed once."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import CONF, compose_config, run_pipeline
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+
+from pipeline.compare import TABLE2, matches
+from pipeline.sweep import format_table, read_jobs, stage_totals, summarize
+from pipeline.tracker import flatten_params
+
+
+def _hydra_cfg(overrides: list[str]):
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+            return compose("config", overrides=overrides, return_hydra_config=True).hydra
+    finally:
+        GlobalHydra.instance().clear()
+
+
+@pytest.mark.parametrize(("table", "axis", "values"), [
+    ("table1", "relation/backbone", "conv_fc,resnet18"),
+    ("table2", "table2_row", "conv_fc,neg0.1,fewer_neg,small_mask,input56,ex4"),
+])
+def test_experiments_sweep_the_paper_rows_with_two_parallel_jobs(table, axis, values):
+    hydra = _hydra_cfg([f"experiment={table}"])
+    assert hydra.mode.name == "MULTIRUN"
+    assert dict(hydra.sweeper.params) == {axis: values}
+    assert hydra.launcher._target_.endswith("JoblibLauncher") and hydra.launcher.n_jobs == 2
+    assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
+
+
+def test_table3_is_one_job_of_the_default_configuration():
+    hydra = _hydra_cfg(["experiment=table3"])
+    assert hydra.mode.name == "MULTIRUN" and not hydra.sweeper.params
+    assert compose_config(["experiment=table3"])["relation"] == compose_config([])["relation"]
+
+
+def test_each_table2_row_is_the_configuration_compare_reads_as_that_row():
+    names = ["conv_fc", "neg0.1", "fewer_neg", "small_mask", "input56", "ex4"]
+    for name, row in zip(names, TABLE2, strict=True):
+        params = flatten_params(compose_config(["experiment=table2", f"table2_row={name}"]))
+        assert [r.label for r in TABLE2 if matches(r, params)] == [row.label], name
+
+
+def _job(tmp_path, num: int, overrides: list[str], hits: dict[str, bool]):
+    job = tmp_path / str(num)
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text("".join(f"- {o}\n" for o in overrides))
+    stages = {name: {"hit": hit, "key": f"{name}-key" if name != "relation" else f"rel-{num}", "reason": "",
+                     "seconds": 1.0, "metrics": {}} for name, hit in hits.items()}
+    (job / "summary.json").write_text(json.dumps({"mlflow_run_id": f"run{num}", "pipeline_seconds": 2.5,
+                                                  "stages": stages}))
+
+
+def test_sweep_summary_counts_computed_and_reused_entries(tmp_path, capsys):
+    _job(tmp_path, 0, ["relation/backbone=conv_fc", "profile=smoke"], {"data": False, "priors": True, "relation": False})
+    _job(tmp_path, 1, ["relation/backbone=resnet18", "profile=smoke"], {"data": True, "priors": False, "relation": False})
+    summary = summarize(tmp_path)
+    assert summary["stages"]["data"] == {"jobs": 2, "distinct_keys": 1, "computed": 1, "reused": 1}
+    assert summary["stages"]["relation"] == {"jobs": 2, "distinct_keys": 2, "computed": 2, "reused": 0}
+    assert json.loads((tmp_path / "sweep_summary.json").read_text())["jobs"][1]["job"] == "1"
+    out = capsys.readouterr().out
+    assert "1  relation/backbone=resnet18" in out and "profile=smoke" not in out.splitlines()[2]
+    table = format_table(read_jobs(tmp_path), stage_totals(read_jobs(tmp_path)))
+    assert table.splitlines()[-1].split()[-3:] == ["1/2", "1/2", "2/2"]
+
+
+@pytest.mark.slow
+def test_parallel_sweep_computes_shared_stages_once(tmp_path):
+    proc = run_pipeline(tmp_path, ["experiment=table1", "profile=smoke", "data.frames=4", "pipeline.until=priors"],
+                        f"sqlite:///{tmp_path / 'mlflow.db'}")
+    summary = json.loads((tmp_path / "sweep" / "sweep_summary.json").read_text())
+    assert len(summary["jobs"]) == 2
+    for stage in ("data", "priors"):
+        assert summary["stages"][stage] == {"jobs": 2, "distinct_keys": 1, "computed": 1, "reused": 1}
+    assert "computed / jobs" in proc.stdout
+
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
+    names = sorted(r.info.run_name for r in runs if "mlflow.parentRunId" not in r.data.tags)
+    assert [n.split()[:2] for n in names] == [["smoke", "relation/backbone=conv_fc"],
+                                              ["smoke", "relation/backbone=resnet18"]]
