@@ -208,7 +208,9 @@ def _run_name(cfg: DictConfig, overrides: list[str], choices: dict[str, str]) ->
     remaining command-line overrides."""
     groups = [g for g in (cfg.pipeline.get("run_name_groups") or []) if g in choices]
     named = [f"{g}={choices[g]}" for g in groups]
-    shown = [o for o in overrides if not o.startswith("profile=") and o not in named]
+    # Where the run is stored and cached does not change its results: left out of the name (kept as a tag).
+    shown = [o for o in overrides if not o.startswith(("profile=", "pipeline.cache_dir=", "tracking.", "hydra."))
+             and o not in named]
     return " ".join([str(cfg.get("profile_name", "pipeline")), *named, *shown])
 
 
