@@ -3,7 +3,7 @@
 - ``resnet18``: CenterNet's plain ``res_18`` (msra_resnet): ResNet-18 basic blocks down to stride 32,
   then three 4x4 stride-2 transposed convolutions of 256/256/256 channels back up to stride 4.
   Written here (no torchvision), randomly initialised.
-- ``tiny``: the CPU default. Four stride-2 stages of one basic block each (stride 2..16), then a small
+- ``tiny``: the CPU default. Stride-2 stages of one basic block each (stride 2..32), then a small
   top-down path (nearest upsampling + 1x1 lateral skips, as in FPN) back to stride 4. The skips carry the
   fine detail small wheels need that a deconvolution stack would have to relearn.
 
@@ -77,30 +77,30 @@ class ResNet18Deconv(nn.Module):
 
 
 class TinyBackbone(nn.Module):
-    """Stem (stride 2) + three basic-block stages (strides 4, 8, 16) + top-down path to stride 4."""
+    """Stem (stride 2) + one basic block per further stride-2 stage (``channels[1:]``, strides 4, 8, ...), then
+    a top-down path (nearest upsampling, 1x1 lateral, 3x3 smoothing) back to stride 4. Five channel widths
+    reach stride 32, whose receptive field covers the nearest vehicles (half the image wide)."""
 
-    stride_multiple = 16
-
-    def __init__(self, channels: tuple[int, int, int, int] = (16, 32, 64, 128), out_channels: int = 64):
+    def __init__(self, channels: tuple[int, ...] = (16, 32, 64, 128, 256), out_channels: int = 32):
         super().__init__()
-        c1, c2, c3, c4 = channels
-        self.stem = conv_bn_relu(3, c1, stride=2)
-        self.stage4 = BasicBlock(c1, c2, stride=2)
-        self.stage8 = BasicBlock(c2, c3, stride=2)
-        self.stage16 = BasicBlock(c3, c4, stride=2)
-        self.lateral16 = nn.Conv2d(c4, out_channels, 1)
-        self.lateral8 = nn.Conv2d(c3, out_channels, 1)
-        self.lateral4 = nn.Conv2d(c2, out_channels, 1)
-        self.smooth8 = conv_bn_relu(out_channels, out_channels)
-        self.smooth4 = conv_bn_relu(out_channels, out_channels)
+        if len(channels) < 3:
+            raise ValueError(f"detector.backbone.channels: need at least 3 widths (stem, stride 4, stride 8), got {channels}")
+        self.stem = conv_bn_relu(3, channels[0], stride=2)
+        self.stages = nn.ModuleList(BasicBlock(a, b, stride=2) for a, b in zip(channels[:-1], channels[1:], strict=True))
+        self.laterals = nn.ModuleList(nn.Conv2d(c, out_channels, 1) for c in channels[1:])
+        self.smooths = nn.ModuleList(conv_bn_relu(out_channels, out_channels) for _ in channels[2:])
         self.out_channels = out_channels
+        self.stride_multiple = 2 ** len(channels)  # input sizes must be divisible by the deepest stride
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        f4 = self.stage4(self.stem(x))
-        f8 = self.stage8(f4)
-        f16 = self.stage16(f8)
-        p8 = self.smooth8(self.lateral8(f8) + F.interpolate(self.lateral16(f16), scale_factor=2.0, mode="nearest"))
-        return self.smooth4(self.lateral4(f4) + F.interpolate(p8, scale_factor=2.0, mode="nearest"))
+        features, x = [], self.stem(x)
+        for stage in self.stages:
+            x = stage(x)
+            features.append(x)
+        p = self.laterals[-1](features[-1])
+        for f, lateral, smooth in zip(features[-2::-1], self.laterals[-2::-1], self.smooths[::-1], strict=True):
+            p = smooth(lateral(f) + F.interpolate(p, scale_factor=2.0, mode="nearest"))
+        return p
 
 
 def build_backbone(cfg: dict) -> nn.Module:

@@ -31,6 +31,20 @@ def test_resnet18_has_resnet18_size():
     assert backbone_params == pytest.approx(11.18e6, rel=0.01)  # ResNet-18 without its fc layer
 
 
+def test_default_tiny_config_reaches_stride_32():
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    tiny = OmegaConf.to_container(OmegaConf.load(Path(__file__).resolve().parents[3] / "conf/detector/backbone/tiny.yaml"))
+    net = build_centernet(config(tiny, width=96, height=64)).eval()
+    assert net.backbone.stride_multiple == 32
+    with torch.no_grad():
+        assert net(torch.randn(1, 3, 64, 96))[0].shape == (1, 2, 16, 24)
+    with pytest.raises(ValueError, match="divisible by 32"):
+        build_centernet(config(tiny, width=80))
+
+
 def test_input_size_must_fit_the_strides():
     with pytest.raises(ValueError, match="divisible by 32"):
         build_centernet(config(RESNET18, width=80))
