@@ -36,4 +36,4 @@ ui: setup
 	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db --host 127.0.0.1 --port 5000
 
 clean:
-	rm -rf outputs multirun .deepword_cache mlflow.db mlflow.db.lock mlartifacts
+	rm -rf outputs multirun .deepword_cache mlflow.db mlflow.db.lock mlartifacts mlruns
