@@ -22,9 +22,16 @@ COUNT_KEYS = ("wheels", "wheels_correct", "images", "images_correct", "pair_tp",
               "couple_tp", "couple_fp", "couple_fn")
 
 
+PAD_VALUES = {"classes": -1, "role": -1}  # padded nodes: no class, no role; every other field 0
+PAIR_FIELDS = ("adj", "cand", "owner", "couple")  # (N, N) per image
+
+
 class GraphDataset(Dataset):
-    """One padded graph per image. ``hflip``: probability of mirroring an image's graph left-right (crops
-    flipped, x coordinates mirrored); distance ratios, adjacency, targets and roles are unchanged by it."""
+    """One graph per image, unpadded (``collate_graphs`` pads a batch to its largest graph, not to
+    max_objects: padding never changes real outputs, and most images hold far fewer objects, so the
+    backbone, the N x N graph part and the copies all shrink). ``hflip``: probability of mirroring an
+    image's graph left-right (crops flipped, x coordinates mirrored); distance ratios, adjacency,
+    targets and roles are unchanged by it."""
 
     def __init__(self, split: SplitInputs, hflip: float = 0.0):
         self.split = split
@@ -39,20 +46,36 @@ class GraphDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         start, stop = int(self.offsets[i]), int(self.offsets[i + 1])
-        n = self.tensors["classes"].shape[1]
-        crops = torch.zeros((n, *self.crops.shape[1:]), dtype=torch.uint8)
-        crops[: stop - start] = self.crops[start:stop]
-        item = {k: v[i] for k, v in self.tensors.items()}
+        k = stop - start
+        item = {key: v[i, :k, :k] if v.dim() == 3 and key != "coords" else v[i, :k] for key, v in self.tensors.items()}
         item["classes"] = item["classes"].long()
         item["role"] = item["role"].long()
+        crops = self.crops[start:stop]
         if self.hflip > 0 and torch.rand(()) < self.hflip:
             crops = crops.flip(-1)
             coords = item["coords"].clone()
-            k = stop - start
-            coords[:k, 0], coords[:k, 2] = 1.0 - item["coords"][:k, 2], 1.0 - item["coords"][:k, 0]
+            coords[:, 0], coords[:, 2] = 1.0 - item["coords"][:, 2], 1.0 - item["coords"][:, 0]
             item["coords"] = coords
         item["crops"] = crops
         return item
+
+
+def collate_graphs(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Stack graphs padded to the batch's largest node count (at least 1): node fields along dim 0,
+    pair fields (N x N) along dims 0 and 1."""
+    n = max([len(item["classes"]) for item in items] + [1])
+    batch = {}
+    for key, first in items[0].items():
+        shape = (len(items), n, n) if key in PAIR_FIELDS else (len(items), n, *first.shape[1:])
+        out = torch.full(shape, PAD_VALUES.get(key, 0), dtype=first.dtype)
+        for b, item in enumerate(items):
+            k = len(item["classes"])
+            if key in PAIR_FIELDS:
+                out[b, :k, :k] = item[key]
+            else:
+                out[b, :k] = item[key]
+        batch[key] = out
+    return batch
 
 
 class RelationDataModule(L.LightningDataModule):
@@ -62,10 +85,11 @@ class RelationDataModule(L.LightningDataModule):
         self.batch_size, self.hflip = batch_size, hflip
 
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(GraphDataset(self.train_split, self.hflip), batch_size=self.batch_size, shuffle=True)
+        return DataLoader(GraphDataset(self.train_split, self.hflip), batch_size=self.batch_size, shuffle=True,
+                          collate_fn=collate_graphs)
 
     def val_dataloader(self) -> DataLoader:
-        return DataLoader(GraphDataset(self.val_split), batch_size=self.batch_size)
+        return DataLoader(GraphDataset(self.val_split), batch_size=self.batch_size, collate_fn=collate_graphs)
 
 
 class RelationCounts(Metric):
@@ -132,7 +156,7 @@ class RelationModule(L.LightningModule):
         return h
 
     def forward(self, batch: dict[str, torch.Tensor]):
-        return self.model.relate(self.node_features(batch), batch["adj"], batch["cand"])
+        return self.model.relate(self.node_features(batch), batch["adj"], batch["cand"], batch["coords"])
 
     def _loss(self, outputs, batch):
         lc = self.hparams.loss
@@ -183,7 +207,7 @@ def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> 
     """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU."""
     module = module.eval()
     counts = RelationCounts()
-    for batch in DataLoader(GraphDataset(split), batch_size=batch_size):
+    for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
         pred_owner, pred_couple = module.decide(module(batch), batch)
         counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"]))
     return counts.compute()

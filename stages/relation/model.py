@@ -93,20 +93,55 @@ def build_backbone(name: str, input_size: int, expansion: int, out_dim: int, bas
 
 # --- graph part ---------------------------------------------------------------------------------------
 
+EDGE_FEATURES = 6  # pair_geometry's width
+
+
+def pair_geometry(coords: torch.Tensor) -> torch.Tensor:
+    """Relative box geometry of every node pair from the normalised boxes (B, N, 4) -> (B, N, N, 6):
+    centre offset of j in units of i's width/height, log width and height ratios, and the share of each
+    box's area inside the other (containment: a wheel sits in its vehicle's box). Elementwise ops only,
+    so it traces to ONNX for any N. Padded nodes (all-zero boxes) give finite values; their edges are
+    masked anyway."""
+    eps = 1e-6
+    x1, y1, x2, y2 = coords.unbind(-1)
+    w, h = (x2 - x1).clamp_min(eps), (y2 - y1).clamp_min(eps)
+    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+    dx = (cx.unsqueeze(1) - cx.unsqueeze(2)) / w.unsqueeze(2)  # [b, i, j]: j relative to i
+    dy = (cy.unsqueeze(1) - cy.unsqueeze(2)) / h.unsqueeze(2)
+    log_w = torch.log(w.unsqueeze(1) / w.unsqueeze(2))
+    log_h = torch.log(h.unsqueeze(1) / h.unsqueeze(2))
+    iw = (torch.minimum(x2.unsqueeze(1), x2.unsqueeze(2)) - torch.maximum(x1.unsqueeze(1), x1.unsqueeze(2))).clamp_min(0)
+    ih = (torch.minimum(y2.unsqueeze(1), y2.unsqueeze(2)) - torch.maximum(y1.unsqueeze(1), y1.unsqueeze(2))).clamp_min(0)
+    inter = iw * ih
+    area = w * h
+    in_i, in_j = inter / area.unsqueeze(2), inter / area.unsqueeze(1)  # share of i's / j's area in the other
+    return torch.stack([dx.clamp(-10, 10), dy.clamp(-10, 10), log_w.clamp(-5, 5), log_h.clamp(-5, 5), in_i, in_j], -1)
+
+
 class EdgeAttention(nn.Module):
     """Eq. 3-5: e_ij = FC(ReLU(FC(concat(x_i, x_j)))), Scale_ij = softmax of e_ij over i's neighbours.
     The first FC on the concatenation is split into its x_i and x_j halves (the same linear map) so the
-    (B, N, N, 2H) concatenation is never built."""
+    (B, N, N, 2H) concatenation is never built.
 
-    def __init__(self, dim: int, hidden: int):
+    ``edge_geometry`` (an addition to the paper, off = the paper's Net): the first FC also sees the
+    pair's relative box geometry (``pair_geometry``), i.e. FC(concat(x_i, x_j, g_ij)). The node features
+    hold each box's absolute position only through the coordinate planes, so comparing two boxes (is
+    this wheel inside that vehicle, in its lower half?) must otherwise be learned from two embeddings."""
+
+    def __init__(self, dim: int, hidden: int, edge_geometry: bool = False):
         super().__init__()
-        self.fc1 = nn.Linear(2 * dim, hidden)
+        self.fc1 = nn.Linear(2 * dim + (EDGE_FEATURES if edge_geometry else 0), hidden)
         self.fc2 = nn.Linear(hidden, 1)
         self.dim = dim
+        self.edge_geometry = edge_geometry
 
-    def forward(self, h: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
-        w_i, w_j = self.fc1.weight[:, : self.dim], self.fc1.weight[:, self.dim :]
+    def forward(self, h: torch.Tensor, neighbours: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
+        w_i, w_j = self.fc1.weight[:, : self.dim], self.fc1.weight[:, self.dim : 2 * self.dim]
         pair = F.linear(h, w_i, self.fc1.bias).unsqueeze(2) + F.linear(h, w_j).unsqueeze(1)  # (B, N, N, hidden)
+        if self.edge_geometry:
+            if coords is None:
+                raise ValueError("EdgeAttention(edge_geometry=True) needs the normalised boxes (coords)")
+            pair = pair + F.linear(pair_geometry(coords), self.fc1.weight[:, 2 * self.dim :])
         logits = self.fc2(F.relu(pair)).squeeze(-1)
         logits = torch.where(neighbours, logits, torch.full_like(logits, _MASKED_LOGIT))
         # a node without neighbours (padding) gets a uniform row from softmax: zero it
@@ -124,13 +159,15 @@ class ModelConfig:
     gat: bool = True
     gat_hidden: int = 64
     gcn_layers: int = 2
+    edge_geometry: bool = False  # addition to the paper: GAT sees the pair's relative box geometry
 
     @classmethod
     def from_cfg(cls, rel) -> ModelConfig:
         b, m = rel.backbone, rel.model
         return cls(backbone=str(b.name), input_size=int(b.input_size), expansion=int(b.expansion),
                    base_width=int(b.get("base_width", 64)), hidden=int(m.hidden), embed_dim=int(m.embed_dim),
-                   gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers))
+                   gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers),
+                   edge_geometry=bool(m.edge_geometry))
 
 
 class RelationNet(nn.Module):
@@ -142,7 +179,7 @@ class RelationNet(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.backbone = build_backbone(cfg.backbone, cfg.input_size, cfg.expansion, cfg.hidden, cfg.base_width)
-        self.attention = EdgeAttention(cfg.hidden, cfg.gat_hidden) if cfg.gat else None
+        self.attention = EdgeAttention(cfg.hidden, cfg.gat_hidden, cfg.edge_geometry) if cfg.gat else None
         self.gcn = nn.ModuleList(nn.Linear(cfg.hidden, cfg.hidden) for _ in range(cfg.gcn_layers))
         self.owner_head = nn.Linear(cfg.hidden, cfg.embed_dim)
         self.couple_head = nn.Linear(cfg.hidden, cfg.embed_dim)
@@ -153,17 +190,19 @@ class RelationNet(nn.Module):
         b, n = x.shape[0], x.shape[1]
         return self.backbone(x.flatten(0, 1)).reshape(b, n, self.cfg.hidden)
 
-    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor,
+                     coords: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """W' = adj * Scale (Eq. 5; Scale = 1 without GAT), row-normalised for the graph convolution so
-        that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale)."""
+        that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale).
+        ``coords`` (B, N, 4) normalised boxes: needed only with ``edge_geometry``."""
         neighbours = adj > 0
-        scale = self.attention(h, neighbours) if self.attention is not None else neighbours.to(adj.dtype)
+        scale = self.attention(h, neighbours, coords) if self.attention is not None else neighbours.to(adj.dtype)
         weights = adj * scale
         return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12), scale
 
-    def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
-        """Graph part on backbone features h (B, N, hidden)."""
-        weights, _ = self.edge_weights(h, adj)
+    def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
+        """Graph part on backbone features h (B, N, hidden) and normalised boxes coords (B, N, 4)."""
+        weights, _ = self.edge_weights(h, adj, coords)
         for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
             h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
@@ -175,7 +214,8 @@ class RelationNet(nn.Module):
         return owner_scores, couple_scores, front
 
     def forward(self, x: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
-        return self.relate(self.embed(x), adj, cand)
+        # the boxes are the node tensor's constant coordinate planes (channels 3-6), read at one pixel
+        return self.relate(self.embed(x), adj, cand, x[:, :, 3:, 0, 0])
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -22,6 +22,7 @@ ABLATIONS = {
     "input56": {"relation.backbone.input_size": 56},
     "ex4": {"relation.backbone.expansion": 4},
     "no_gat": {"relation.model.gat": False},
+    "no_edge_geometry": {"relation.model.edge_geometry": False},
     "no_prior": {"relation.adjacency": "uniform"},
 }
 

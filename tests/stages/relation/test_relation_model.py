@@ -7,7 +7,7 @@ import torch
 
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
 from stages.relation.inputs import InputConfig, node_tensor
-from stages.relation.model import ModelConfig, RelationNet, count_parameters
+from stages.relation.model import ModelConfig, RelationNet, count_parameters, pair_geometry
 
 torch.set_num_threads(1)
 
@@ -45,8 +45,9 @@ def test_resnet18_at_full_width_is_resnet18_sized():
     assert 11.0e6 < count_parameters(net.backbone) < 11.5e6  # torchvision's resnet18 has 11.7M with its 1000-way fc
 
 
-def test_padding_never_changes_real_outputs():
-    net = _net()
+@pytest.mark.parametrize("edge_geometry", [False, True])
+def test_padding_never_changes_real_outputs(edge_geometry):
+    net = _net(edge_geometry=edge_geometry)
     x, adj, cand, split = _inputs(12)
     n_big = 20
     pad = n_big - 12
@@ -61,8 +62,9 @@ def test_padding_never_changes_real_outputs():
         assert torch.allclose(small[2][i, :k], big[2][i, :k], atol=1e-6)
 
 
-def test_permuting_objects_permutes_outputs():
-    net = _net()
+@pytest.mark.parametrize("edge_geometry", [False, True])
+def test_permuting_objects_permutes_outputs(edge_geometry):
+    net = _net(edge_geometry=edge_geometry)
     x, adj, cand, split = _inputs(12, n_images=1)
     k = int(split.valid[0].sum())
     perm = torch.cat([torch.randperm(k, generator=torch.Generator().manual_seed(3)), torch.arange(k, 12)])
@@ -128,3 +130,30 @@ def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     assert m["wheel_acc"] == pytest.approx(200 / 3) and m["image_acc"] == 0.0
     assert m["pair_precision"] == 100.0 and m["pair_recall"] == 50.0 and m["couple_f1"] == 100.0
     assert np.isclose(m["pair_f1"], 200 / 3)
+
+
+def test_pair_geometry_gives_offsets_size_ratios_and_containment():
+    vehicle, wheel = [0.2, 0.2, 0.6, 0.6], [0.25, 0.5, 0.35, 0.6]  # the wheel in the vehicle's lower left
+    g = pair_geometry(torch.tensor([[vehicle, wheel]]))[0]
+    assert g.shape == (2, 2, 6)
+    dx, dy, log_w, log_h, in_i, in_j = g[0, 1].tolist()           # the wheel seen from the vehicle
+    assert dx == pytest.approx(-0.25) and dy == pytest.approx(0.375)
+    assert log_w == pytest.approx(np.log(0.25)) and log_h == pytest.approx(np.log(0.25))
+    assert in_i == pytest.approx(0.01 / 0.16) and in_j == pytest.approx(1.0)
+    assert torch.allclose(g[1, 0, 4:], g[0, 1, 4:].flip(0)) and torch.allclose(g[0, 0, :4], torch.zeros(4))
+
+
+def test_edge_geometry_is_an_opt_in_addition_the_attention_reads():
+    assert _net().attention.fc1.in_features == 2 * 32                     # the paper's Net(x_i, x_j)
+    net = _net(edge_geometry=True)
+    assert net.attention.fc1.in_features == 2 * 32 + 6
+    x, adj, _, _ = _inputs(12)
+    h = net.embed(x)
+    moved = x[:, :, 3:, 0, 0].clone()
+    moved[:, 0] += 0.1                                                      # the same node features, box moved
+    with torch.no_grad():
+        _, scale = net.edge_weights(h, adj, x[:, :, 3:, 0, 0])
+        _, scale_moved = net.edge_weights(h, adj, moved)
+    assert not torch.allclose(scale, scale_moved)
+    with pytest.raises(ValueError, match="coords"):
+        net.edge_weights(h, adj)

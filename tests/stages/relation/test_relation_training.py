@@ -9,10 +9,15 @@ import pytest
 import relation_data as rd
 import torch
 from omegaconf import OmegaConf
-from torch.utils.data import default_collate
 
 from stages.relation.inputs import InputConfig
-from stages.relation.lightning import GraphDataset, RelationDataModule, RelationModule, score_split
+from stages.relation.lightning import (
+    GraphDataset,
+    RelationDataModule,
+    RelationModule,
+    collate_graphs,
+    score_split,
+)
 from stages.relation.model import ModelConfig
 
 torch.set_num_threads(1)
@@ -33,7 +38,7 @@ def _split(n: int, seed: int = 0):
 def test_overfits_one_batch_to_full_wheel_accuracy():
     split = _split(8)
     module = _module()
-    batch = default_collate([GraphDataset(split)[i] for i in range(len(split))])
+    batch = collate_graphs([GraphDataset(split)[i] for i in range(len(split))])
     opt = torch.optim.Adam(module.parameters(), lr=3e-3)
     start = score_split(module, split, 8)["wheel_acc"]
     for _ in range(100):
@@ -65,6 +70,23 @@ def test_nan_loss_stops_training_with_a_clear_message():
     data = RelationDataModule(train, _split(2, seed=1), batch_size=4)
     with pytest.raises(FloatingPointError, match=r"relation: training loss is nan .* epoch 0, batch 0"):
         _trainer(max_epochs=1, num_sanity_val_steps=0).fit(_module(), datamodule=data)
+
+
+def test_batches_are_padded_to_their_largest_graph_with_the_split_values():
+    split = _split(3)
+    items = [GraphDataset(split)[i] for i in range(3)]
+    sizes = np.diff(split.offsets)
+    batch = collate_graphs(items)
+    n = int(sizes.max())
+    assert n < split.classes.shape[1] and batch["crops"].shape == (3, n, 3, 28, 28)
+    for key in ("coords", "classes", "valid", "role"):
+        assert torch.equal(batch[key], torch.from_numpy(getattr(split, key)[:, :n]).to(batch[key].dtype))
+    for key in ("adj", "cand", "owner", "couple"):
+        assert torch.equal(batch[key], torch.from_numpy(getattr(split, key)[:, :n, :n]))
+    for i, k in enumerate(sizes):
+        a = int(split.offsets[i])
+        assert torch.equal(batch["crops"][i, :k], torch.from_numpy(split.crops[a : a + k]))
+        assert not batch["crops"][i, k:].any()
 
 
 def test_hflip_mirrors_crops_and_x_coordinates_only():
