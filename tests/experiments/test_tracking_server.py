@@ -3,8 +3,11 @@ the smoke pipeline (data + priors) run against it in a subprocess, and the runs 
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
-from conftest import MlflowServer, run_pipeline
+from conftest import REPO, MlflowServer, free_port, run_pipeline
 
 pytestmark = pytest.mark.slow
 
@@ -51,11 +54,6 @@ def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_serve
 
 
 def test_unreachable_server_fails_before_any_stage(tmp_path):
-    import subprocess
-    import sys
-
-    from conftest import REPO, free_port
-
     port = free_port()
     proc = subprocess.run([sys.executable, "-m", "pipeline", "profile=smoke", "tracking=server",
                            f"tracking.uri=http://127.0.0.1:{port}", f"pipeline.cache_dir={tmp_path / 'cache'}",

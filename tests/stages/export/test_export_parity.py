@@ -4,7 +4,7 @@ detector, a deliberately diverging model that parity must catch, INT8, and the n
 import numpy as np
 import pytest
 import torch
-from conftest import RELATION_MODEL
+from conftest import DETECTOR, RELATION_MODEL
 
 from stages.export.decode import decode_couples, decode_owners
 from stages.export.onnx_export import export_detector, export_relation, relation_example
@@ -110,8 +110,6 @@ def test_parity_catches_a_flipped_decision_even_within_the_tolerance():
 
 
 def test_detector_matches_torch_with_dynamic_batch_and_catches_divergence(tmp_path):
-    from conftest import DETECTOR
-
     from stages.detector.model import build_centernet, model_config
 
     torch.manual_seed(0)
