@@ -12,13 +12,7 @@ import hashlib
 import os
 from pathlib import Path
 
-
-def _file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+from pipeline.cache import file_sha256
 
 
 def _dir_digest(root: Path) -> str:
@@ -39,7 +33,7 @@ def path_digest(path: str | os.PathLike) -> str:
     """Digest of one watched path; ``missing`` when it does not exist (the stage reports that)."""
     p = Path(path)
     if p.is_file():
-        return "file:" + _file_digest(p)
+        return "file:" + file_sha256(p)
     if p.is_dir():
         return "dir:" + _dir_digest(p)
     return "missing"
