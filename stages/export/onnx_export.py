@@ -7,11 +7,15 @@ that older embedded runtimes read (opset 17). The exported graphs are checked by
 
 What is exported:
 - relation: ``RelationGraph`` = the node tensor of DESIGN §6 (uint8 crops -> [0, 1] RGB + four coordinate
-  planes, ``stages.relation.inputs.node_tensor``) + ``RelationNet``. Inputs crops (B, N, 3, S, S) uint8,
-  coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs owner, couple (B, N, N), front (B, N).
-  Decisions (0.5 threshold, one owner) stay outside the graph (``stages.export.decode``): onnxruntime
-  has no boolean EyeLike kernel, and an embedded runtime applies its own post-processing anyway.
-  ``static``: N fixed to max_objects (batch dynamic); ``dynamic``: batch and N dynamic.
+  planes, ``stages.relation.inputs.node_tensor``) + ``RelationNet``: the trained module, the PyTorch
+  reference of parity and latency. What is exported is ``ShippedRelation``, the same function rewritten
+  for inference speed (``FoldedBackbone``: the /255, the first BatchNorm and the four constant planes
+  folded into the first convolution; dynamic variant: the backbone runs on real objects only).
+  Inputs crops (B, N, 3, S, S) uint8, coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs
+  owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
+  (``stages.export.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
+  its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
+  throughout; ``dynamic``: batch and N dynamic.
 - detector: ``DetectorGraph`` = CenterNet + ``ctdet_decode`` (peak extraction and top-K), dynamic batch;
   outputs the three heads and the (B, K, 6) detections, so a runtime needs no post-processing.
 """
@@ -22,6 +26,7 @@ import warnings
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from stages.export.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
@@ -39,6 +44,86 @@ class RelationGraph(nn.Module):
 
     def forward(self, crops, coords, adj, cand):
         return self.net(node_tensor(crops, coords), adj, cand)
+
+
+class FoldedBackbone(nn.Module):
+    """``backbone(node_tensor(crops, coords))`` computed with less work (same function up to float rounding).
+
+    The node tensor's channels 3-6 are constant planes (the box coordinates), so the first convolution's
+    response to them is ``coords @ planes``, with ``planes`` that convolution applied to all-ones planes
+    once at export time (the zero padding at the borders included): the (N, 7, S, S) node tensor is never
+    built, and the convolution runs on 3 channels instead of 7. The /255 of the RGB channels and the
+    following BatchNorm (eval mode: a per-channel affine map) are folded into its weights and a bias.
+    Backbones: ``ConvFC`` and ``ResNet18`` (first conv + BatchNorm, then the rest of the network)."""
+
+    def __init__(self, backbone: nn.Module, input_size: int):
+        super().__init__()
+        from stages.relation.model import ConvFC, ResNet18
+
+        if isinstance(backbone, ConvFC):
+            conv, bn, self.body, self.pool = backbone.features[0], backbone.features[1], backbone.features[2:], False
+        elif isinstance(backbone, ResNet18):
+            conv, bn, self.pool = backbone.stem[0], backbone.stem[1], True
+            self.body = nn.Sequential(*backbone.stem[2:], backbone.blocks)
+        else:
+            raise TypeError(f"FoldedBackbone: no folding for {type(backbone).__name__}")
+        self.fc = backbone.fc
+        self.stride, self.padding = conv.stride, conv.padding
+        with torch.no_grad():
+            scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+            weight = conv.weight * scale[:, None, None, None]
+            self.register_buffer("rgb_weight", weight[:, :3] / 255.0)
+            self.register_buffer("bias", bn.bias - bn.running_mean * scale)
+            ones = torch.ones(1, 1, input_size, input_size)
+            planes = torch.cat([F.conv2d(ones, weight[:, 3 + k: 4 + k], None, conv.stride, conv.padding)
+                                for k in range(4)])  # (4, C, S', S')
+        self.plane_shape = tuple(planes.shape[1:])
+        self.register_buffer("planes", planes.flatten(1))
+
+    @staticmethod
+    def supports(backbone: nn.Module) -> bool:
+        from stages.relation.model import ConvFC, ResNet18
+
+        return isinstance(backbone, ConvFC | ResNet18)
+
+    def forward(self, crops: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+        """crops (M, 3, S, S) uint8, coords (M, 4) -> (M, hidden)."""
+        z = F.conv2d(crops.to(torch.float32), self.rgb_weight, self.bias, self.stride, self.padding)
+        z = z + (coords.to(torch.float32) @ self.planes).view(-1, *self.plane_shape)
+        y = self.body(z)
+        return self.fc(y.mean(dim=(2, 3)) if self.pool else torch.flatten(y, 1))
+
+
+class ShippedRelation(nn.Module):
+    """What the relation ONNX models compute: ``RelationGraph`` with ``FoldedBackbone`` (when the backbone
+    has a folding). ``real_only`` (the dynamic variant): the backbone, most of the cost, runs only on
+    real objects, gathered by their non-zero coordinates (``pad_graphs`` pads with all-zero boxes), and
+    padded nodes get zero features. Padding is masked out of every output that counts (no edges, not a
+    candidate: ``stages.export.parity``), so a batch of images padded to its largest costs the backbone
+    only its real objects. The static variant keeps static shapes throughout (no NonZero) for embedded
+    runtimes, so it runs the backbone on every slot."""
+
+    def __init__(self, net: nn.Module, real_only: bool):
+        super().__init__()
+        self.net, self.real_only = net, real_only
+        folded = FoldedBackbone.supports(net.backbone)
+        self.backbone = FoldedBackbone(net.backbone, net.cfg.input_size) if folded else None
+
+    def embed(self, crops: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+        if self.backbone is None:
+            return self.net.backbone(node_tensor(crops, coords))
+        return self.backbone(crops, coords)
+
+    def forward(self, crops, coords, adj, cand):
+        b, n = crops.shape[0], crops.shape[1]
+        flat_crops, flat_coords = crops.flatten(0, 1), coords.flatten(0, 1).to(torch.float32)
+        if self.real_only:
+            real = torch.nonzero(flat_coords.abs().sum(-1) > 0).squeeze(1)
+            h = torch.zeros(b * n, self.net.cfg.hidden, dtype=torch.float32)
+            h = h.index_put((real,), self.embed(flat_crops[real], flat_coords[real]))
+        else:
+            h = self.embed(flat_crops, flat_coords)
+        return self.net.relate(h.view(b, n, -1), adj, cand, coords.to(torch.float32))
 
 
 class DetectorGraph(nn.Module):
@@ -87,7 +172,8 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
     # the dynamic variant is traced with fewer nodes than max_objects, so no size is baked in by accident
     n = max_objects if static else max(2, max_objects // 2 + 1)
     example = relation_example(n, input_size)
-    return _export(RelationGraph(net), example, path, RELATION_INPUTS, RELATION_OUTPUTS, axes)
+    shipped = ShippedRelation(net.eval(), real_only=not static)
+    return _export(shipped, example, path, RELATION_INPUTS, RELATION_OUTPUTS, axes)
 
 
 def export_detector(net: nn.Module, path: Path, input_width: int, input_height: int, k: int) -> Path:

@@ -7,19 +7,58 @@ import torch
 from conftest import DETECTOR, RELATION_MODEL
 
 from stages.export.decode import decode_couples, decode_owners
-from stages.export.onnx_export import export_detector, export_relation, relation_example
+from stages.export.onnx_export import FoldedBackbone, export_detector, export_relation, relation_example
 from stages.export.parity import ParityError, ParityReport, detector_parity, relation_parity
 from stages.export.runtime import RELATION_OUTPUTS, ort_session
 from stages.relation import decode as torch_decode
-from stages.relation.inputs import ImageGraph
+from stages.relation.inputs import ImageGraph, node_tensor
 from stages.relation.model import ModelConfig, RelationNet
 
 torch.set_num_threads(1)
 
 
+def trained_like(net: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
+    """BatchNorm statistics and affine parameters as after training (fresh ones are the identity map,
+    under which a wrong BatchNorm folding in the export would go unnoticed)."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                c = m.num_features
+                m.running_mean.copy_(torch.randn(c, generator=gen) * 0.5)
+                m.running_var.copy_(torch.rand(c, generator=gen) + 0.5)
+                m.weight.copy_(torch.rand(c, generator=gen) + 0.5)
+                m.bias.copy_(torch.randn(c, generator=gen) * 0.2)
+    return net.eval()
+
+
 def small_net(seed: int = 0) -> RelationNet:
     torch.manual_seed(seed)
-    return RelationNet(ModelConfig(**RELATION_MODEL)).eval()
+    return trained_like(RelationNet(ModelConfig(**RELATION_MODEL)), seed)
+
+
+@pytest.mark.parametrize("backbone", ["conv_fc", "resnet18"])
+def test_folded_backbone_computes_the_backbone_of_the_node_tensor(backbone):
+    cfg = ModelConfig(**{**RELATION_MODEL, "backbone": backbone})
+    torch.manual_seed(1)
+    net = trained_like(RelationNet(cfg), seed=1)
+    gen = torch.Generator().manual_seed(2)
+    crops = torch.randint(0, 256, (5, 3, cfg.input_size, cfg.input_size), dtype=torch.uint8, generator=gen)
+    coords = torch.rand((5, 4), generator=gen)
+    with torch.no_grad():
+        ref = net.backbone(node_tensor(crops, coords))
+        folded = FoldedBackbone(net.backbone, cfg.input_size)(crops, coords)
+    assert ref.abs().max() > 0.1
+    torch.testing.assert_close(folded, ref, atol=1e-5, rtol=1e-5)
+
+
+def test_dynamic_model_runs_the_backbone_on_real_objects_only(relation_models):
+    import onnx
+
+    _, static, dynamic = relation_models
+    ops = {n.op_type for n in onnx.load(str(dynamic)).graph.node}
+    assert "NonZero" in ops  # padded slots are skipped by gathering the real objects
+    assert "NonZero" not in {n.op_type for n in onnx.load(str(static)).graph.node}  # static shapes throughout
 
 
 def random_graphs(counts, size: int, seed: int = 0) -> list[ImageGraph]:
