@@ -1,7 +1,16 @@
-"""A torch Dataset turning WORD records into letterboxed network inputs and CenterNet targets."""
+"""A torch Dataset turning WORD records into letterboxed network inputs and CenterNet targets.
+
+Each image is decoded and letterboxed to the network input size once and kept in memory (uint8) for
+the dataset's lifetime, so later epochs pay neither the PNG decode nor the resize. Training items are
+then augmented on that small uint8 image: a horizontal flip, an optional random crop of ``crop`` =
+(width, height) (CenterNet's random-crop augmentation: the network is fully convolutional, so it trains
+on crops and still runs on the whole letterboxed image at inference, where small wheels keep the pixels
+of the full input scale) and photometric jitter on the crop only.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -20,40 +29,82 @@ def max_objects_of(records: list[Record]) -> int:
     return max([len(r.boxes) for r in records] + [1])
 
 
+def crop_boxes(xyxy: np.ndarray, x0: int, y0: int, width: int, height: int,
+               min_visible: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (N, 4) seen through the window ``[x0, x0 + width) x [y0, y0 + height)``: shifted into the window,
+    clipped to it, and kept (mask ``keep``) only where at least ``min_visible`` of their area is inside --
+    a sliver of a vehicle at the crop border is no vehicle to learn from. Returns (kept boxes, keep)."""
+    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
+    shifted = xyxy - np.array([x0, y0, x0, y0], dtype=np.float64)
+    clipped = shifted.copy()
+    clipped[:, [0, 2]] = clipped[:, [0, 2]].clip(0, width)
+    clipped[:, [1, 3]] = clipped[:, [1, 3]].clip(0, height)
+    area = (shifted[:, 2] - shifted[:, 0]) * (shifted[:, 3] - shifted[:, 1])
+    visible = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
+    keep = (visible > 0) & (visible >= min_visible * area)
+    return clipped[keep], keep
+
+
 class CenterNetDataset(Dataset):
     """Items: ``image`` (3, H, W) float, targets ``hm wh reg ind mask`` (see ``centernet_targets``) and
-    ``index`` of the record. ``augment`` (flip probability and jitter strengths) or None for evaluation."""
+    ``index`` of the record. ``augment`` (flip probability, jitter strengths, optional ``crop`` [w, h] and
+    ``crop_min_visible``) or None for evaluation (the whole letterboxed image, no crop)."""
 
     def __init__(self, root: str | Path, records: list[Record], input_width: int, input_height: int,
                  max_objects: int, augment: dict | None = None, min_overlap: float = 0.7):
         self.root, self.records = Path(root), records
         self.input_width, self.input_height = input_width, input_height
         self.max_objects, self.augment, self.min_overlap = max_objects, augment, min_overlap
+        self.crop = tuple(augment["crop"]) if augment and augment.get("crop") else None
+        if self.crop and (self.crop[0] > input_width or self.crop[1] > input_height):
+            raise ValueError(f"detector.augment.crop={list(self.crop)} is larger than the input size "
+                             f"{input_width}x{input_height}")
+        self._cache: dict[int, tuple[np.ndarray, Record]] = {}
 
     def __len__(self) -> int:
         return len(self.records)
 
-    def augmented(self, record: Record, image: np.ndarray) -> tuple[Record, np.ndarray]:
+    def letterboxed(self, index: int) -> tuple[np.ndarray, Record]:
+        """The record's image letterboxed to the input size (uint8, cached) and the record of that image:
+        boxes in input pixels, width and height the input size."""
+        if index not in self._cache:
+            record = self.records[index]
+            box = letterbox_for(record.width, record.height, self.input_width, self.input_height)
+            boxes = record.boxes.copy()
+            boxes[:, :4] = boxes_to_input(record.xyxy, box)
+            inside = dataclasses.replace(record, boxes=boxes, width=self.input_width, height=self.input_height)
+            self._cache[index] = letterbox_image(load_image(self.root, record), box), inside
+        return self._cache[index]
+
+    def augmented(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(augmented image, its boxes (N, 4), their classes) from a letterboxed image and its record."""
         # Drawn from torch's generator so that Lightning's seed_everything (and its per-worker seeding)
         # makes the augmentation reproducible.
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()).item()))
         aug = self.augment
         if rng.random() < aug["flip"]:
-            record, image = flip_record(record), flip_image(image)
+            image, record = flip_image(image), flip_record(record)
+        xyxy, classes = record.xyxy, record.class_ids
+        if self.crop is not None:
+            cw, ch = self.crop
+            x0 = int(rng.integers(0, image.shape[1] - cw + 1))
+            y0 = int(rng.integers(0, image.shape[0] - ch + 1))
+            image = image[y0:y0 + ch, x0:x0 + cw]
+            xyxy, keep = crop_boxes(xyxy, x0, y0, cw, ch, aug.get("crop_min_visible", 0.5))
+            classes = classes[keep]
         image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"])
-        return record, image
+        return image, xyxy, classes
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
-        record = self.records[index]
-        image = load_image(self.root, record)
+        image, record = self.letterboxed(index)
         if self.augment is not None:
-            record, image = self.augmented(record, image)
-        box = letterbox_for(record.width, record.height, self.input_width, self.input_height)
-        x = normalise(letterbox_image(image, box))
-        grid_boxes = boxes_to_input(record.xyxy, box) / DOWN_RATIO
-        targets = centernet_targets(grid_boxes, record.class_ids, len(CLASS_NAMES), self.input_width // DOWN_RATIO,
-                                    self.input_height // DOWN_RATIO, self.max_objects, self.min_overlap)
+            image, xyxy, classes = self.augmented(image, record)
+        else:
+            xyxy, classes = record.xyxy, record.class_ids
+        height, width = image.shape[:2]
+        targets = centernet_targets(xyxy / DOWN_RATIO, classes, len(CLASS_NAMES), width // DOWN_RATIO,
+                                    height // DOWN_RATIO, self.max_objects, self.min_overlap)
         item = {k: torch.from_numpy(v) for k, v in targets.items()}
-        item["image"] = torch.from_numpy(x)
+        item["image"] = torch.from_numpy(normalise(image))
         item["index"] = torch.tensor(index)
         return item

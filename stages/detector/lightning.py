@@ -34,15 +34,18 @@ def check_finite_loss(total: torch.Tensor, parts: dict[str, torch.Tensor], epoch
 
 class CenterNetModule(L.LightningModule):
     """Trains a CenterNet; at the end of each validation epoch computes COCO AP per class on the val set
-    (``val/ap50.<class>``, ``val/ap.<class>`` in percent, and their class mean ``val/ap50`` to monitor)."""
+    (``val/ap50.<class>``, ``val/ap.<class>`` in percent, and their class mean ``val/ap50`` to monitor), with
+    ground-truth boxes under ``ap_min_box_px`` ignored as in the stage's reported AP."""
 
-    def __init__(self, model_cfg: dict, loss: dict, optimizer: dict, score_threshold: float):
+    def __init__(self, model_cfg: dict, loss: dict, optimizer: dict, score_threshold: float,
+                 ap_min_box_px: float = 0.0):
         super().__init__()
         self.save_hyperparameters()
         self.net = build_centernet(model_cfg)
         self.k = int(model_cfg["max_detections"])
         self.input_size = (int(model_cfg["input_width"]), int(model_cfg["input_height"]))
         self.loss_weights, self.optim_cfg, self.score_threshold = loss, optimizer, score_threshold
+        self.ap_min_box_px = ap_min_box_px
         self._val_detections: list[torch.Tensor] = []
         self._val_indices: list[torch.Tensor] = []
 
@@ -81,7 +84,7 @@ class CenterNetModule(L.LightningModule):
         preds = [detections_to_record(dets[first[i]], records[i],
                                       letterbox_for(records[i].width, records[i].height, *self.input_size),
                                       self.score_threshold) for i in order]
-        ap = coco_average_precision(preds, [records[i] for i in order], CLASS_NAMES)
+        ap = coco_average_precision(preds, [records[i] for i in order], CLASS_NAMES, self.ap_min_box_px)
         values = {f"val/{m}.{c}": v[m] for c, v in ap.items() for m in ("ap50", "ap")}
         values = {k: (0.0 if math.isnan(v) else v) for k, v in values.items()}
         self.log_dict(values)

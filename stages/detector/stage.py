@@ -48,6 +48,22 @@ def _load_best_weights(net, checkpoint_path: str) -> None:
     net.load_state_dict({k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")})
 
 
+def ap_metrics(predictions: list, truth: list, split: str, min_box_px: float) -> dict[str, float]:
+    """``detector.<split>.{ap50,ap}.<class>`` with ground truth under ``min_box_px`` ignored, and, when that
+    ignores anything, ``detector.<split>.{ap50_all,ap_all}.<class>`` over every box."""
+    from stages.detector.metrics import coco_average_precision
+    from stages.detector.model import CLASS_NAMES
+
+    protocols = {"": min_box_px} if min_box_px <= 0 else {"": min_box_px, "_all": 0.0}
+    out = {}
+    for suffix, min_px in protocols.items():
+        for name, ap in coco_average_precision(predictions, truth, CLASS_NAMES, min_px).items():
+            for kind in ("ap50", "ap"):
+                if not math.isnan(ap[kind]):
+                    out[f"detector.{split}.{kind}{suffix}.{name}"] = ap[kind]
+    return out
+
+
 def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import lightning as L
     import torch
@@ -55,8 +71,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
 
     from stages.detector.curves import plot_curves
     from stages.detector.lightning import CenterNetModule, DetectorDataModule
-    from stages.detector.metrics import coco_average_precision
-    from stages.detector.model import CLASS_NAMES, build_centernet, model_config, save_detector
+    from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
 
@@ -69,7 +84,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     dataset = open_dataset(inputs["data"])
     splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
     mcfg = model_config(det)
-    module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"])
+    module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"])
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
                               det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
     checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="best", monitor="val/ap50", mode="max",
@@ -99,10 +114,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
                                 mcfg["max_detections"], mcfg["score_threshold"], det["batch_size"])
         write_records(out_dir / f"predictions_{split}.jsonl", preds)
         predictions[split] = preds
-        for name, ap in coco_average_precision(preds, splits[split], CLASS_NAMES).items():
-            for kind in ("ap50", "ap"):
-                if not math.isnan(ap[kind]):
-                    metrics[f"detector.{split}.{kind}.{name}"] = ap[kind]
+        metrics |= ap_metrics(preds, splits[split], split, det["ap_min_box_px"])
 
     artifacts = out_dir / "artifacts"
     shown = slice(0, det["render_images"])

@@ -38,3 +38,28 @@ def test_ranking_matters_and_missing_classes():
     assert coco_average_precision(empty, gt)["wheel"]["ap50"] == 0.0
     with pytest.raises(ValueError, match="ground truth"):
         coco_average_precision([rec("b", [])], gt)
+
+
+def test_boxes_below_min_box_px_are_ignored_not_missed_nor_false_positives():
+    # a 5 px wheel missed and a 4 px wheel detected (ranked first), beside a 20 px wheel found
+    gt = [rec("a", [[0, 0, 20, 20, 1, 1, 0], [50, 50, 55, 55, 1, 1, 1], [80, 80, 84, 84, 1, 1, 2]])]
+    pred = [rec("a", [[80, 80, 84, 84, 0.9, 1, 0], [0, 0, 20, 20, 0.8, 1, 1]])]
+    every_box = coco_average_precision(pred, gt)["wheel"]["ap50"]
+    assert every_box == pytest.approx(66.7, abs=1.0)  # recall 2/3 at precision 1
+    assert coco_average_precision(pred, gt, min_box_px=8)["wheel"]["ap50"] == pytest.approx(100.0)
+    # only ground truth is ignored: a small false positive still counts against the detector
+    fp = [rec("a", [[30, 30, 34, 34, 0.9, 1, 0], [0, 0, 20, 20, 0.8, 1, 1]])]
+    assert coco_average_precision(fp, gt, min_box_px=8)["wheel"]["ap50"] == pytest.approx(50.0, abs=1.0)
+
+
+def test_stage_reports_every_box_ap_beside_the_protocol_ap():
+    from stages.detector.stage import ap_metrics
+
+    gt = [rec("a", [[0, 0, 40, 40, 1, 0, 0], [0, 0, 20, 20, 1, 1, 1], [50, 50, 55, 55, 1, 1, 2]])]
+    pred = [rec("a", [[0, 0, 40, 40, 0.9, 0, 0], [0, 0, 20, 20, 0.8, 1, 1]])]
+    every_box = ap_metrics(pred, gt, "test", 0)
+    assert set(every_box) == {f"detector.test.{k}.{c}" for k in ("ap50", "ap") for c in ("vehicle", "wheel")}
+    both = ap_metrics(pred, gt, "test", 8)
+    assert both["detector.test.ap50.wheel"] == pytest.approx(100.0)
+    assert both["detector.test.ap50_all.wheel"] == pytest.approx(every_box["detector.test.ap50.wheel"])
+    assert both["detector.test.ap50_all.wheel"] == pytest.approx(50.0, abs=1.0)

@@ -1,0 +1,62 @@
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from stages.detector.dataset import CenterNetDataset, crop_boxes
+from stages.word_format import Record
+
+
+def test_crop_boxes_shifts_clips_and_drops_mostly_hidden_boxes():
+    xyxy = np.array([[10, 10, 30, 30],     # inside
+                     [-10, 0, 10, 20],     # half outside on the left: kept at min_visible 0.5, clipped
+                     [35, 0, 60, 10],      # 1/5 inside: dropped
+                     [100, 100, 110, 110]  # outside
+                     ], dtype=float) + [5, 5, 5, 5]
+    kept, keep = crop_boxes(xyxy, 5, 5, 40, 30, min_visible=0.5)
+    assert keep.tolist() == [True, True, False, False]
+    assert np.allclose(kept, [[10, 10, 30, 30], [0, 0, 10, 20]])
+    assert crop_boxes(xyxy, 5, 5, 40, 30, min_visible=0.1)[1].tolist() == [True, True, True, False]
+
+
+def write_image(root, width=96, height=64) -> Record:
+    """White squares on black: three 'vehicles' (class 0) and one 'wheel' (class 1)."""
+    boxes = np.array([[4, 4, 20, 20, 1, 0, 0], [40, 10, 60, 30, 1, 0, 1], [70, 30, 90, 60, 1, 0, 2],
+                      [44, 30, 50, 36, 1, 1, 3]], dtype=float)
+    image = np.zeros((height, width, 3), dtype=np.uint8)
+    for x1, y1, x2, y2 in boxes[:, :4].astype(int):
+        image[y1:y2, x1:x2] = 255
+    (root / "images").mkdir()
+    cv2.imwrite(str(root / "images/a.png"), image)
+    return Record(image="images/a.png", frame_id=0, camera="front", width=width, height=height, boxes=boxes,
+                  relations=[], wheel_pairs=[])
+
+
+@pytest.mark.parametrize("flip", [0.0, 1.0])
+def test_random_crops_keep_image_and_boxes_consistent(tmp_path, flip):
+    record = write_image(tmp_path)
+    augment = {"flip": flip, "brightness": 0.0, "contrast": 0.0, "saturation": 0.0, "crop": [64, 32],
+               "crop_min_visible": 0.5}
+    dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=8, augment=augment)
+    torch.manual_seed(0)
+    seen = set()
+    for _ in range(20):
+        image, xyxy, classes = dataset.augmented(*dataset.letterboxed(0))
+        assert image.shape == (32, 64, 3) and len(xyxy) == len(classes)
+        for x1, y1, x2, y2 in np.round(xyxy).astype(int):
+            assert image[y1:y2, x1:x2].min() == 255              # every kept box lies on its white square
+        seen.add(len(xyxy))
+    assert len(seen) > 1  # the crops moved
+    item = dataset[0]
+    assert item["image"].shape == (3, 32, 64) and item["hm"].shape == (2, 8, 16)
+    assert int(item["mask"].sum()) == int((item["hm"] == 1).sum())  # one peak per kept object
+
+
+def test_evaluation_items_are_the_whole_letterboxed_image(tmp_path):
+    record = write_image(tmp_path)
+    dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=8, augment=None)
+    item = dataset[0]
+    assert item["image"].shape == (3, 64, 96) and int(item["mask"].sum()) == 4
+    assert dataset.letterboxed(0)[0] is dataset.letterboxed(0)[0]  # decoded once, then cached
+    with pytest.raises(ValueError, match="larger than the input size"):
+        CenterNetDataset(tmp_path, [record], 96, 64, 8, augment={"crop": [128, 32]})
