@@ -38,16 +38,22 @@ def batches(feeds: Sequence[dict[str, np.ndarray]], batch: int) -> list[dict[str
     return out
 
 
+def graph_batches(graphs: Sequence, size: int, batch: int, n: int | None = None) -> list[dict[str, np.ndarray]]:
+    """Feeds of ``batch`` consecutive graphs each (cycling to fill the last), padded to ``n`` objects or,
+    by default, to the largest graph of each batch (how the dynamic model runs a batch of images)."""
+    from stages.export.runtime import pad_graphs
+
+    groups = [[graphs[(start + j) % len(graphs)] for j in range(batch)] for start in range(0, len(graphs), batch)]
+    return [pad_graphs(group, size, n)[0] for group in groups]
+
+
 def onnx_ms(session, feeds: Sequence[dict[str, np.ndarray]], runs: int, warmup: int) -> float:
     """Median ms of one session call, cycling through ``feeds``."""
     return median_ms(lambda i: session.run(None, feeds[i % len(feeds)]), runs, warmup)
 
 
-def cpu_ms(model_path, feeds: Sequence[dict[str, np.ndarray]], runs: int, warmup: int) -> float:
+def cpu_ms(session, feeds: Sequence[dict[str, np.ndarray]], runs: int, warmup: int) -> float:
     """Median CPU milliseconds of one call of a one-thread session (see the module docstring)."""
-    from stages.export.runtime import ort_session
-
-    session = ort_session(model_path, 1)
     return median_ms(lambda i: session.run(None, feeds[i % len(feeds)]), runs, warmup, clock=time.thread_time)
 
 

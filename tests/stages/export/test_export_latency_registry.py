@@ -3,13 +3,28 @@
 import numpy as np
 import pytest
 
-from stages.export.latency import batches, median_ms
+from stages.export.latency import batches, graph_batches, median_ms
 
 
 def test_batches_cycle_through_images_and_concatenate_along_batch():
     feeds = [{"x": np.full((1, 2), i)} for i in range(3)]
     out = batches(feeds, 2)
     assert [f["x"][:, 0].tolist() for f in out] == [[0, 1], [2, 0]]
+
+
+def test_graph_batches_pad_each_batch_to_its_largest_graph_or_to_n():
+    from stages.relation.inputs import ImageGraph
+
+    def graph(k: int) -> ImageGraph:
+        return ImageGraph(crops=np.full((k, 3, 4, 4), k, np.uint8), coords=np.ones((k, 4), np.float32),
+                          classes=np.zeros(k, np.int8), valid=np.ones(k, bool), adj=np.eye(k, dtype=np.float32),
+                          cand=np.zeros((k, k), bool))
+
+    graphs = [graph(k) for k in (2, 5, 3)]
+    out = graph_batches(graphs, 4, 2)  # (2, 5) and (3, 2): the last batch cycles back to the first graph
+    assert [f["crops"].shape[:2] for f in out] == [(2, 5), (2, 3)]
+    assert out[1]["crops"][1, :2].min() == 2 and out[1]["coords"][1, 2:].max() == 0  # padding: all-zero boxes
+    assert [f["adj"].shape for f in graph_batches(graphs, 4, 1, n=6)] == [(1, 6, 6)] * 3
 
 
 def test_median_ms_runs_warmup_then_timed_calls():

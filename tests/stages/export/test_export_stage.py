@@ -19,8 +19,11 @@ def test_stage_writes_checked_models_and_metrics(exported):
     for key in ("ms_per_img_b1", "ms_per_10img_b10", "params", "size_mb"):
         for model in ("relation", "detector"):
             assert metrics[f"export.{model}.{key}"] > 0
-    for key in ("torch_ms_per_img_b1", "cpu_ms_per_img_b1", "cpu_ms_per_10img_b10", "dynamic_cpu_ms_per_img_b1"):
-        assert metrics[f"export.relation.{key}"] > 0
+    for b in ("ms_per_img_b1", "ms_per_10img_b10"):  # real object counts; static padded; the references
+        for prefix in ("", "cpu_", "static_", "static_cpu_", "torch_"):
+            assert metrics[f"export.relation.{prefix}{b}"] > 0
+    assert metrics["export.relation.speedup_vs_torch"] == pytest.approx(
+        metrics["export.relation.torch_ms_per_img_b1"] / metrics["export.relation.ms_per_img_b1"])
     bundle = json.loads((out / BUNDLE_FILE).read_text())
     assert bundle["metrics"] == pytest.approx(metrics)
     assert (out / "artifacts" / "latency.md").read_text().count("|") > 20
