@@ -7,6 +7,7 @@ import csv
 
 import pytest
 from conftest import compose_config
+from sqlite_store import fresh_store
 
 from pipeline.compare import PAPER_TABLE3, compare, main
 from pipeline.mlflow_ops import MlflowOps
@@ -32,7 +33,7 @@ def _eval(acc: float) -> dict:
 
 @pytest.fixture()
 def store(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = fresh_store(tmp_path / "mlflow.db")
     ops = MlflowOps(uri, "deepword")
     ids = {
         "conv_fc": _parent(ops, ["relation/backbone=conv_fc"], _eval(80.0), "smoke relation/backbone=conv_fc"),

@@ -122,16 +122,6 @@ def write_toy_project(root: Path, package: str) -> None:
     (root / "dataset" / "labels.jsonl").write_text('{"image": "a.png"}\n')
 
 
-@pytest.fixture(scope="session")
-def mlflow_template(tmp_path_factory) -> Path:
-    """An initialised MLflow sqlite store, copied per test: creating its tables takes seconds."""
-    from mlflow.tracking import MlflowClient
-
-    path = tmp_path_factory.mktemp("mlflow_template") / "mlflow.db"
-    MlflowClient(f"sqlite:///{path}").search_experiments()
-    return path
-
-
 @pytest.fixture
 def toy(tmp_path, monkeypatch, mlflow_template) -> ToyProject:
     package = f"toyproj_{uuid.uuid4().hex[:10]}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from sqlite_store import fresh_store
 from tiny_dataset import write_tiny_dataset
 
 
@@ -13,5 +14,5 @@ def tiny(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def tracking_uri(tmp_path_factory):
-    """One sqlite store for all in-process runs: creating MLflow's tables takes seconds."""
-    return f"sqlite:///{tmp_path_factory.mktemp('mlflow')}/mlflow.db"
+    """One sqlite store for all in-process runs (copied from the session's initialised template)."""
+    return fresh_store(tmp_path_factory.mktemp("mlflow") / "mlflow.db")

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from hydra import compose, initialize_config_dir
+from sqlite_store import fresh_store
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -39,7 +40,9 @@ def pipeline_command(data_root: Path, cache: Path, *extra: str) -> list[str]:
 
 
 def pipeline_env(tmp: Path) -> dict[str, str]:
-    return {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp}/mlflow.db", "DEEPWORD_THREADS": "1",
+    """The environment of a pipeline subprocess tracking to ``tmp/mlflow.db`` (created here from the
+    initialised template unless it exists: the subprocess would spend seconds creating its tables)."""
+    return {**os.environ, "MLFLOW_TRACKING_URI": fresh_store(Path(tmp) / "mlflow.db"), "DEEPWORD_THREADS": "1",
             "PYTHONUNBUFFERED": "1"}
 
 
