@@ -4,6 +4,7 @@ flattened real config of each table row, plus runs that must be ignored (childre
 from __future__ import annotations
 
 import csv
+import shutil
 
 import pytest
 from conftest import compose_config
@@ -31,9 +32,11 @@ def _eval(acc: float) -> dict:
     return metrics
 
 
-@pytest.fixture()
-def store(tmp_path):
-    uri = fresh_store(tmp_path / "mlflow.db")
+@pytest.fixture(scope="module")
+def filled_store(tmp_path_factory):
+    """The store, filled once (composing each row's config takes seconds): tests get copies."""
+    path = tmp_path_factory.mktemp("compare_store") / "mlflow.db"
+    uri = fresh_store(path)
     ops = MlflowOps(uri, "deepword")
     ids = {
         "conv_fc": _parent(ops, ["relation/backbone=conv_fc"], _eval(80.0), "smoke relation/backbone=conv_fc"),
@@ -50,7 +53,15 @@ def store(tmp_path):
     other = ops.create_run("comparison", {"kind": "comparison"})
     ops.log(other, metrics=_eval(5.0), params=flatten_params(compose_config(["relation/backbone=conv_fc"])))
     ops.end(other)
-    return uri, ids
+    return path, ids
+
+
+@pytest.fixture()
+def store(filled_store, tmp_path):
+    """A copy of the filled store per test: ``compare`` logs its comparison run into it."""
+    path, ids = filled_store
+    shutil.copyfile(path, tmp_path / "mlflow.db")
+    return f"sqlite:///{tmp_path / 'mlflow.db'}", ids
 
 
 def _csv(path):

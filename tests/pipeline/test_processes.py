@@ -108,6 +108,9 @@ def test_cli_runs_hydra_app_with_tracking_worker_and_rerun_is_up_to_date(toy):
     conf.mkdir()
     (conf / "toy.yaml").write_text(TOY_ROOT_CONFIG.format(uri=toy.db_uri, pkg=toy.package))
     cmd = [sys.executable, "-m", "pipeline", "--config-path", str(conf), "--config-name", "toy", "beta.offset=5"]
+    # A bad stage name fails before any stage runs or any MLflow run starts: it can start beside the first run.
+    bad = subprocess.Popen(cmd + ["pipeline.until=zeta"], cwd=toy.root, env=_env(toy), stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
     first = subprocess.run(cmd, cwd=toy.root, env=_env(toy), capture_output=True, text=True, timeout=120)
     assert first.returncode == 0, first.stdout + first.stderr
     second = subprocess.run(cmd, cwd=toy.root, env=_env(toy), capture_output=True, text=True, timeout=120)
@@ -123,6 +126,5 @@ def test_cli_runs_hydra_app_with_tracking_worker_and_rerun_is_up_to_date(toy):
     assert parent.info.run_name == "toy beta.offset=5"
     assert parent.data.params["beta.offset"] == "5" and parent.info.status == "FINISHED"
 
-    bad = subprocess.run(cmd + ["pipeline.until=zeta"], cwd=toy.root, env=_env(toy), capture_output=True,
-                         text=True, timeout=120)
-    assert bad.returncode == 1 and "error: pipeline.until: unknown stage(s) ['zeta']" in bad.stderr
+    _, bad_stderr = bad.communicate(timeout=120)
+    assert bad.returncode == 1 and "error: pipeline.until: unknown stage(s) ['zeta']" in bad_stderr
