@@ -64,6 +64,12 @@ def ap_metrics(predictions: list, truth: list, split: str, min_box_px: float) ->
     return out
 
 
+def check_crop(crop: list[int] | None, multiple: int) -> None:
+    """Training crops pass through the same strides as whole inputs: their sides must divide evenly too."""
+    if crop and any(int(side) % multiple for side in crop):
+        raise ValueError(f"detector.augment.crop={list(crop)} must be divisible by {multiple} for this backbone")
+
+
 def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import lightning as L
     import torch
@@ -85,6 +91,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
     mcfg = model_config(det)
     module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"])
+    check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
                               det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
     checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="best", monitor="val/ap50", mode="max",

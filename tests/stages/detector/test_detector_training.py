@@ -24,6 +24,7 @@ def detector_cfg(**overrides) -> dict:
     cfg = OmegaConf.load(CONF / "detector" / "default.yaml")
     cfg.backbone = OmegaConf.load(CONF / "detector" / "backbone" / "tiny.yaml")
     cfg.merge_with({"input_width": 128, "input_height": 96, "batch_size": 4, "epochs": 1, "render_images": 2,
+                    "ap_min_box_px": 7,  # ignores the toy's smallest (6 px) wheels
                     "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "out_channels": 16,
                                                          "head_conv": 16}})
     cfg.merge_with(overrides)
@@ -61,7 +62,7 @@ def test_empty_val_split_is_an_error(toy_dataset):
 def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
     from stages.detector.stage import run
 
-    cfg = OmegaConf.create({"detector": detector_cfg(epochs=2), "seed": 3,
+    cfg = OmegaConf.create({"detector": detector_cfg(epochs=2, augment={"crop": [64, 64]}), "seed": 3,
                             "trainer": OmegaConf.load(CONF / "trainer" / "cpu.yaml")})
     cfg.trainer.threads = 1
     out = tmp_path / "detector"
@@ -72,6 +73,7 @@ def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
         for kind in ("ap50", "ap"):
             for name in ("vehicle", "wheel"):
                 assert 0.0 <= metrics[f"detector.{split}.{kind}.{name}"] <= 100.0
+                assert 0.0 <= metrics[f"detector.{split}.{kind}_all.{name}"] <= 100.0
     assert json.loads((out / "metrics.json").read_text()) == metrics
     ds = open_dataset(toy_dataset)
     for split in ("val", "test"):
@@ -87,3 +89,11 @@ def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
     assert (out / "artifacts" / "curves.png").is_file()
     net, config = load_detector(out)
     assert config["input_width"] == 128 and not net.training
+
+
+def test_crops_must_fit_the_backbone_strides(toy_dataset, tmp_path):
+    from stages.detector.stage import run
+
+    cfg = OmegaConf.create({"detector": detector_cfg(augment={"crop": [72, 64]}), "seed": 3, "trainer": {"threads": 1}})
+    with pytest.raises(ValueError, match=r"detector.augment.crop=\[72, 64\] must be divisible by 16"):
+        run(cfg, {"data": toy_dataset}, tmp_path)
