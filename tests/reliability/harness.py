@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -52,3 +53,10 @@ def complete_entries(cache: Path, stage: str) -> list[Path]:
     if not stage_dir.is_dir():
         return []
     return sorted(p for p in stage_dir.iterdir() if not p.name.startswith(".") and (p / "manifest.json").exists())
+
+
+def copy_upstream(upstream_cache: Path, cache: Path) -> None:
+    """Put the data and priors entries of ``upstream_cache`` (conftest ``upstream``) and their latest-run
+    records into ``cache``; mtimes are kept, so that the cache's fast verification accepts them."""
+    for stage in ("data", "priors"):
+        shutil.copytree(upstream_cache / stage, cache / stage, ignore=shutil.ignore_patterns(".locks", ".partial-*"))

@@ -16,14 +16,6 @@ from pipeline.errors import PipelineError
 from pipeline.keys import key_parts
 
 
-@pytest.fixture(scope="module")
-def upstream(tmp_path_factory, tiny, tracking_uri):
-    """A cache holding data and priors for the tiny dataset: the relation tests below start from it."""
-    cache = tmp_path_factory.mktemp("upstream") / "cache"
-    summary = run_in_process(tiny, cache, tracking_uri, "pipeline.until=priors")
-    return cache, {s: summary["stages"][s]["key"] for s in ("data", "priors")}
-
-
 def nothing_cached_for_relation(cache) -> bool:
     stage_dir = cache / "relation"
     return complete_entries(cache, "relation") == [] and not list(stage_dir.glob(".partial-*"))
