@@ -4,15 +4,19 @@ the pipeline on the smoke profile shrunk further (tiny data, a few training step
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
+from sqlite_store import fresh_store, fresh_store_for_uri
 
 from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
 
@@ -54,32 +58,92 @@ def artifacts_beside_store(uri: str, artifacts: Path, experiment: str = "deepwor
                                  tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
 
 
-def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
-                 cache: Path | None = None) -> subprocess.CompletedProcess:
-    """``python -m pipeline`` in a subprocess from the repo root, Hydra outputs (and by default the cache)
-    under ``tmp``."""
+@dataclass
+class Started:
+    """A pipeline subprocess and the files its stdout and stderr go to (files, not pipes: two pipelines
+    run side by side must not block on a full pipe while the test waits for the other)."""
+    proc: subprocess.Popen
+    stdout: Path
+    stderr: Path
+
+
+def start_pipeline(tmp: Path, overrides: list[str], uri: str, cache: Path | None = None) -> Started:
+    """``python -m pipeline`` started in a subprocess from the repo root, Hydra outputs, its output and
+    (by default) the cache under ``tmp``; ``finish_pipeline`` waits for it."""
     tmp.mkdir(parents=True, exist_ok=True)
     if uri.startswith("sqlite:"):
+        fresh_store_for_uri(uri)
         artifacts_beside_store(uri, tmp / "artifacts")
     args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={cache or tmp / 'cache'}",
             f"tracking.uri={uri}", f"hydra.run.dir={tmp / 'run'}", f"hydra.sweep.dir={tmp / 'sweep'}"]
     full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1"}
     full_env.pop("MLFLOW_TRACKING_URI", None)
-    proc = subprocess.run(args, cwd=REPO, env=full_env, capture_output=True, text=True, timeout=timeout)
+    started = Started(None, tmp / "pipeline.stdout", tmp / "pipeline.stderr")
+    with started.stdout.open("w") as out, started.stderr.open("w") as err:
+        started.proc = subprocess.Popen(args, cwd=REPO, env=full_env, stdout=out, stderr=err, text=True)
+    return started
+
+
+def finish_pipeline(started: Started, timeout: float = 600) -> subprocess.CompletedProcess:
+    """Wait for a ``start_pipeline`` process; fail the test with its output tail unless it succeeded."""
+    proc = started.proc
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    stdout, stderr = started.stdout.read_text(), started.stderr.read_text()
     if proc.returncode != 0:
-        pytest.fail(f"pipeline {overrides} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
-    return proc
+        pytest.fail(f"pipeline {proc.args[3:]} failed ({proc.returncode}, timeout {timeout} s):\n"
+                    f"{stdout[-3000:]}\n{stderr[-6000:]}")
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
+                 cache: Path | None = None) -> subprocess.CompletedProcess:
+    """``start_pipeline`` and wait for it."""
+    return finish_pipeline(start_pipeline(tmp, overrides, uri, cache), timeout)
+
+
+# The shared smoke run (see ``smoke_store``), started by ``pytest_collection_modifyitems``.
+_smoke: dict = {}
+
+
+def _start_smoke(tmp: Path) -> None:
+    db = tmp / "mlflow.db"
+    _smoke.update(uri=f"sqlite:///{db}", dir=tmp, db=db)
+    _smoke["job"] = start_pipeline(tmp, TINY, _smoke["uri"])
+
+
+@pytest.hookimpl(trylast=True)  # after -k/-m deselection: start the run only for tests that will run
+def pytest_collection_modifyitems(config, items):
+    """When a selected test reads the shared smoke store, start its pipeline run now, in the background,
+    and move those tests to the end of the session: the run (one thread) overlaps every other test instead
+    of the session waiting for it (CI has two cores). The tests keep their order among themselves."""
+    readers = [item for item in items if "smoke_store" in getattr(item, "fixturenames", ())]
+    if not readers or config.option.collectonly:
+        return
+    items[:] = [item for item in items if item not in readers] + readers
+    tmp = Path(tempfile.mkdtemp(prefix="smoke_run_"))
+    _start_smoke(tmp)
+    config.add_cleanup(lambda: _stop_smoke(tmp))
+
+
+def _stop_smoke(tmp: Path) -> None:
+    if _smoke["job"].proc.poll() is None:  # the session ended early (a failure with -x, ctrl-c)
+        _smoke["job"].proc.kill()
+        _smoke["job"].proc.wait()
+    shutil.rmtree(tmp, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
 def smoke_store(tmp_path_factory) -> dict:
     """One whole tiny smoke pipeline run (every stage), shared by the tests that read a real store:
-    {"uri", "dir", "db"}."""
-    tmp = tmp_path_factory.mktemp("smoke_run")
-    db = tmp / "mlflow.db"
-    uri = f"sqlite:///{db}"
-    run_pipeline(tmp, TINY, uri)
-    return {"uri": uri, "dir": tmp, "db": db}
+    {"uri", "dir", "db"}. Started at collection (see above); here the session waits for it to finish."""
+    if not _smoke:  # not started at collection (a test that reaches the fixture another way)
+        _start_smoke(tmp_path_factory.mktemp("smoke_run"))
+    finish_pipeline(_smoke["job"])
+    return {k: _smoke[k] for k in ("uri", "dir", "db")}
 
 
 class MlflowServer:
@@ -89,7 +153,7 @@ class MlflowServer:
     def __init__(self, tmp: Path, command: str = "server", backend_uri: str | None = None):
         self.port = free_port()
         self.uri = f"http://127.0.0.1:{self.port}"
-        self.backend_uri = backend_uri or f"sqlite:///{tmp / 'server.db'}"
+        self.backend_uri = backend_uri or fresh_store(tmp / "server.db")
         exe = Path(sys.executable).parent / "mlflow"
         args = [str(exe), command, "--host", "127.0.0.1", "--port", str(self.port),
                 "--backend-store-uri", self.backend_uri, "--workers", "1"]

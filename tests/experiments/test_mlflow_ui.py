@@ -21,7 +21,8 @@ FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "-
 
 
 @pytest.fixture()
-def browser(tmp_path):
+def browser(ui, tmp_path):
+    """Headless Chromium, started while the ``ui`` server boots; yielded once the UI answers."""
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
@@ -36,6 +37,7 @@ def browser(tmp_path):
     driver = webdriver.Chrome(options=options, service=Service(driver_path))
     driver.set_page_load_timeout(60)
     try:
+        ui.wait_ready()
         yield driver
     finally:
         driver.quit()
@@ -43,9 +45,9 @@ def browser(tmp_path):
 
 @pytest.fixture()
 def ui(smoke_store, tmp_path):
+    """``mlflow ui`` over the smoke store, started, not yet answering (``browser`` waits for it)."""
     srv = MlflowServer(tmp_path, command="ui", backend_uri=smoke_store["uri"])
     try:
-        srv.wait_ready()
         yield srv
     finally:
         srv.stop()

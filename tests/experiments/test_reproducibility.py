@@ -7,7 +7,7 @@ import json
 import subprocess
 
 import pytest
-from conftest import REPO, TINY, run_pipeline
+from conftest import REPO, TINY, finish_pipeline, start_pipeline
 
 pytestmark = pytest.mark.slow
 
@@ -26,15 +26,17 @@ def _stage_metrics(run_dir, stages) -> dict:
 
 def test_same_seed_same_metrics_other_seed_other_metrics(smoke_store, tmp_path):
     stages = ("data", "priors", "relation")
-    again = tmp_path / "again"
-    run_pipeline(again, [*TINY, "pipeline.until=relation"], f"sqlite:///{again / 'mlflow.db'}")
+    again, other = tmp_path / "again", tmp_path / "other"
+    # Independent runs (own cache, own store) side by side: each computes on one thread, CI has two cores.
+    jobs = [start_pipeline(again, [*TINY, "pipeline.until=relation"], f"sqlite:///{again / 'mlflow.db'}"),
+            start_pipeline(other, [*TINY, "seed=7", "pipeline.until=priors"], f"sqlite:///{other / 'mlflow.db'}")]
+    for job in jobs:
+        finish_pipeline(job)
     first = _stage_metrics(smoke_store["dir"] / "run", stages)
     second = _stage_metrics(again / "run", stages)
     assert any(k.startswith("relation.val.") for k in first)
     assert first == second
 
-    other = tmp_path / "other"
-    run_pipeline(other, [*TINY, "seed=7", "pipeline.until=priors"], f"sqlite:///{other / 'mlflow.db'}")
     changed = _stage_metrics(other / "run", ("data", "priors"))
     assert changed != {k: v for k, v in first.items() if k.split(".")[0] in ("data", "priors")}
 
