@@ -121,37 +121,13 @@ def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, 
     return pos_weight * pos_term + neg_weight * neg_term
 
 
-def contained_in(coords: torch.Tensor, min_share: float) -> torch.Tensor:
-    """(B, N, 4) boxes -> (B, N, N): at least ``min_share`` of row box i's area lies inside column box j."""
-    x1, y1, x2, y2 = coords.unbind(-1)
-    iw = (torch.minimum(x2.unsqueeze(2), x2.unsqueeze(1)) - torch.maximum(x1.unsqueeze(2), x1.unsqueeze(1))).clamp_min(0)
-    ih = (torch.minimum(y2.unsqueeze(2), y2.unsqueeze(1)) - torch.maximum(y1.unsqueeze(2), y1.unsqueeze(1))).clamp_min(0)
-    area = ((x2 - x1) * (y2 - y1)).clamp_min(1e-12).unsqueeze(2)
-    return iw * ih >= min_share * area
-
-
-def hard_negative_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean of s^2 over the masked non-pairs only (0 when there are none)."""
-    hard = mask.to(scores.dtype) * (1 - target.to(scores.dtype))
-    return (hard * scores**2).sum() / hard.sum().clamp_min(1.0)
-
-
 def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
-                  role_weight: float, hard_neg_weight: float = 0.0,
-                  hard_neg_min_share: float = 0.5) -> dict[str, torch.Tensor]:
-    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE.
-
-    ``hard_neg_weight`` adds a term averaged over the *hard* wheel-vehicle non-pairs only: wheels lying
-    (``hard_neg_min_share`` of their area) inside a vehicle box that is not theirs. They are the whole
-    difficulty of occluded scenes yet a few percent of all non-pairs, so in the plain mean their
-    gradient is diluted by the many far-apart pairs the network already scores 0."""
+                  role_weight: float) -> dict[str, torch.Tensor]:
+    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE."""
     owner_scores, couple_scores, front = outputs
     wv, ww = type_masks(batch["classes"])
     cand = batch["cand"].bool()
     owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
-    if hard_neg_weight > 0:
-        hard = wv & cand & contained_in(batch["coords"], hard_neg_min_share)
-        owner = owner + hard_neg_weight * hard_negative_l2(owner_scores, batch["owner"], hard)
     couple = weighted_l2(couple_scores, batch["couple"], ww & cand, pos_weight, neg_weight)
     known = ((batch["role"] >= 0) & batch["valid"].bool()).to(front.dtype)
     target = batch["role"].clamp_min(0).to(front.dtype)
@@ -184,8 +160,7 @@ class RelationModule(L.LightningModule):
 
     def _loss(self, outputs, batch):
         lc = self.hparams.loss
-        return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"],
-                             lc.get("hard_neg_weight", 0.0), lc.get("hard_neg_min_share", 0.5))
+        return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"])
 
     def training_step(self, batch, batch_idx):
         losses = self._loss(self(batch), batch)

@@ -160,7 +160,6 @@ class ModelConfig:
     gat_hidden: int = 64
     gcn_layers: int = 2
     edge_geometry: bool = False  # addition to the paper: GAT sees the pair's relative box geometry
-    attention_per_layer: bool = False  # every graph-convolution layer re-weights the edges from its own input
 
     @classmethod
     def from_cfg(cls, rel) -> ModelConfig:
@@ -168,8 +167,7 @@ class ModelConfig:
         return cls(backbone=str(b.name), input_size=int(b.input_size), expansion=int(b.expansion),
                    base_width=int(b.get("base_width", 64)), hidden=int(m.hidden), embed_dim=int(m.embed_dim),
                    gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers),
-                   edge_geometry=bool(m.edge_geometry),
-                   attention_per_layer=bool(m.get("attention_per_layer", False)))
+                   edge_geometry=bool(m.edge_geometry))
 
 
 class RelationNet(nn.Module):
@@ -182,11 +180,6 @@ class RelationNet(nn.Module):
         self.cfg = cfg
         self.backbone = build_backbone(cfg.backbone, cfg.input_size, cfg.expansion, cfg.hidden, cfg.base_width)
         self.attention = EdgeAttention(cfg.hidden, cfg.gat_hidden, cfg.edge_geometry) if cfg.gat else None
-        # GAT's own layout: layers after the first compute their attention from the updated features
-        # (a wheel that has gathered its vehicle candidates' features can compare them)
-        later = cfg.gcn_layers - 1 if cfg.gat and cfg.attention_per_layer else 0
-        self.later_attention = nn.ModuleList(EdgeAttention(cfg.hidden, cfg.gat_hidden, cfg.edge_geometry)
-                                             for _ in range(later))
         self.gcn = nn.ModuleList(nn.Linear(cfg.hidden, cfg.hidden) for _ in range(cfg.gcn_layers))
         self.owner_head = nn.Linear(cfg.hidden, cfg.embed_dim)
         self.couple_head = nn.Linear(cfg.hidden, cfg.embed_dim)
@@ -197,24 +190,20 @@ class RelationNet(nn.Module):
         b, n = x.shape[0], x.shape[1]
         return self.backbone(x.flatten(0, 1)).reshape(b, n, self.cfg.hidden)
 
-    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor, coords: torch.Tensor | None = None,
-                     attention: EdgeAttention | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor,
+                     coords: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """W' = adj * Scale (Eq. 5; Scale = 1 without GAT), row-normalised for the graph convolution so
         that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale).
-        ``coords`` (B, N, 4) normalised boxes: needed only with ``edge_geometry``. ``attention``: which
-        attention module (default: the first layer's)."""
+        ``coords`` (B, N, 4) normalised boxes: needed only with ``edge_geometry``."""
         neighbours = adj > 0
-        attention = attention if attention is not None else self.attention
-        scale = attention(h, neighbours, coords) if attention is not None else neighbours.to(adj.dtype)
+        scale = self.attention(h, neighbours, coords) if self.attention is not None else neighbours.to(adj.dtype)
         weights = adj * scale
         return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12), scale
 
     def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
         """Graph part on backbone features h (B, N, hidden) and normalised boxes coords (B, N, 4)."""
         weights, _ = self.edge_weights(h, adj, coords)
-        for k, layer in enumerate(self.gcn):  # residual: a node keeps its own features beside the neighbours' mean
-            if 0 < k <= len(self.later_attention):
-                weights, _ = self.edge_weights(h, adj, coords, self.later_attention[k - 1])
+        for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
             h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
         couple = F.normalize(self.couple_head(h), dim=-1)

@@ -45,9 +45,9 @@ def test_resnet18_at_full_width_is_resnet18_sized():
     assert 11.0e6 < count_parameters(net.backbone) < 11.5e6  # torchvision's resnet18 has 11.7M with its 1000-way fc
 
 
-@pytest.mark.parametrize("edge_geometry,per_layer", [(False, False), (True, False), (True, True)])
-def test_padding_never_changes_real_outputs(edge_geometry, per_layer):
-    net = _net(edge_geometry=edge_geometry, attention_per_layer=per_layer)
+@pytest.mark.parametrize("edge_geometry", [False, True])
+def test_padding_never_changes_real_outputs(edge_geometry):
+    net = _net(edge_geometry=edge_geometry)
     x, adj, cand, split = _inputs(12)
     n_big = 20
     pad = n_big - 12
@@ -62,9 +62,9 @@ def test_padding_never_changes_real_outputs(edge_geometry, per_layer):
         assert torch.allclose(small[2][i, :k], big[2][i, :k], atol=1e-6)
 
 
-@pytest.mark.parametrize("edge_geometry,per_layer", [(False, False), (True, False), (True, True)])
-def test_permuting_objects_permutes_outputs(edge_geometry, per_layer):
-    net = _net(edge_geometry=edge_geometry, attention_per_layer=per_layer)
+@pytest.mark.parametrize("edge_geometry", [False, True])
+def test_permuting_objects_permutes_outputs(edge_geometry):
+    net = _net(edge_geometry=edge_geometry)
     x, adj, cand, split = _inputs(12, n_images=1)
     k = int(split.valid[0].sum())
     perm = torch.cat([torch.randperm(k, generator=torch.Generator().manual_seed(3)), torch.arange(k, 12)])
@@ -157,22 +157,3 @@ def test_edge_geometry_is_an_opt_in_addition_the_attention_reads():
     assert not torch.allclose(scale, scale_moved)
     with pytest.raises(ValueError, match="coords"):
         net.edge_weights(h, adj)
-
-
-def test_attention_per_layer_gives_each_later_layer_its_own_attention():
-    shared, per_layer = _net(gcn_layers=3), _net(gcn_layers=3, attention_per_layer=True)
-    assert len(shared.later_attention) == 0 and len(per_layer.later_attention) == 2
-    assert len(_net(gat=False, attention_per_layer=True).later_attention) == 0  # no GAT, nothing to re-weight
-    x, adj, cand, _ = _inputs(12)
-    with torch.no_grad():
-        h = per_layer.embed(x)
-        _, first = per_layer.edge_weights(h, adj)
-        _, second = per_layer.edge_weights(h, adj, attention=per_layer.later_attention[0])
-        assert not torch.allclose(first, second)  # a separate module, not the first layer's again
-        seen = []  # what the second graph convolution receives: its attention-weighted neighbour means
-        per_layer.gcn[1].register_forward_hook(lambda module, args, out: seen.append(args[0].clone()))
-        per_layer(x, adj, cand)
-        for param in per_layer.later_attention[0].parameters():  # a decisive (far from uniform) attention
-            param.normal_(0.0, 1.0)
-        per_layer(x, adj, cand)
-        assert not torch.allclose(seen[0], seen[1], atol=1e-4)  # the forward pass uses it

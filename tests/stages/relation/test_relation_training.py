@@ -163,37 +163,3 @@ def test_stage_trains_saves_and_predicts(tmp_path):
     # the predictor decides exactly what the training-time decoder decided (same weights, same graph)
     many = predictor.predict_many(recs[16:], rd.render, batch_size=4)
     assert [r.relations for r in many][-1] == pred.relations
-
-
-def test_contained_in_is_the_share_of_the_row_box_inside_the_column_box():
-    from stages.relation.lightning import contained_in
-
-    coords = torch.tensor([[[0.0, 0.0, 1.0, 1.0], [0.1, 0.1, 0.3, 0.3], [0.9, 0.9, 1.2, 1.2]]])
-    inside = contained_in(coords, 0.5)
-    assert inside[0, 1, 0] and not inside[0, 0, 1]  # the small box is inside the big one, not vice versa
-    assert not inside[0, 2, 0]                      # 1/9 of box 2 lies inside box 0
-    assert contained_in(coords, 0.1)[0, 2, 0]
-
-
-def test_hard_negative_term_weights_wheels_inside_a_foreign_vehicle_box():
-    from stages.relation.lightning import relation_loss
-
-    # nodes: vehicle A (big), vehicle B (overlapping A), wheel of B inside both boxes, wheel of A far from B
-    classes = torch.tensor([[0, 0, 1, 1]])
-    coords = torch.tensor([[[0.0, 0.0, 0.6, 0.6], [0.4, 0.3, 0.9, 0.8], [0.45, 0.45, 0.55, 0.55],
-                            [0.05, 0.45, 0.15, 0.55]]])
-    owner = torch.zeros(1, 4, 4)
-    owner[0, 2, 1] = owner[0, 1, 2] = owner[0, 3, 0] = owner[0, 0, 3] = 1
-    batch = {"classes": classes, "coords": coords, "cand": torch.ones(1, 4, 4), "owner": owner,
-             "couple": torch.zeros(1, 4, 4), "role": torch.full((1, 4), -1), "valid": torch.ones(1, 4)}
-    scores = owner.clone()
-    scores[0, 2, 0] = scores[0, 0, 2] = 0.6  # the hard non-pair (wheel 2, vehicle A) scored 0.6
-    outputs = (scores, torch.zeros(1, 4, 4), torch.full((1, 4), 0.5))
-    plain = relation_loss(outputs, batch, 1.0, 1.0, 0.0)["owner"]
-    weighted = relation_loss(outputs, batch, 1.0, 1.0, 0.0, hard_neg_weight=2.0)["owner"]
-    assert torch.isclose(weighted - plain, torch.tensor(2.0 * 0.36))  # one hard negative, mean of s^2 = 0.36
-    scores[0, 2, 0] = scores[0, 0, 2] = 0.0
-    scores[0, 3, 1] = scores[0, 1, 3] = 0.6  # an easy non-pair (wheel 3 is far from B) is not weighted
-    outputs = (scores, torch.zeros(1, 4, 4), torch.full((1, 4), 0.5))
-    assert torch.isclose(relation_loss(outputs, batch, 1.0, 1.0, 0.0, hard_neg_weight=2.0)["owner"],
-                         relation_loss(outputs, batch, 1.0, 1.0, 0.0)["owner"])
