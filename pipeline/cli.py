@@ -9,19 +9,19 @@ import sys
 import traceback
 from pathlib import Path
 
-import hydra
-from omegaconf import DictConfig
-
 from pipeline.errors import PipelineError
+from pipeline.runmode import is_single_run
 from pipeline.tracker import prestart_worker
 
 # ``../conf`` made absolute: a relative config_path in a package turns into a ``pkg://`` lookup that
 # fails outside the repo root (the console script runs from anywhere).
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
+CONF_NAME = "config"
+INFO_FLAGS = ("--help", "-h", "--cfg", "-c", "--info", "--hydra-help", "--shell-completion", "-sc")
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def _app(cfg: DictConfig) -> None:
+
+def _app(cfg) -> None:
     from pipeline.runner import run_pipeline
 
     try:
@@ -60,9 +60,39 @@ def _exit_on_sigterm(signum, _frame) -> None:
     raise SystemExit(128 + signum)
 
 
+def _compose_once_if_single_run(argv: list[str]) -> None:
+    """Skip Hydra's extra compose that only reads ``hydra.mode`` when no config or flag can set it
+    (``pipeline.runmode``); any unusual command line keeps Hydra's own check."""
+    from hydra._internal.hydra import Hydra
+    from hydra._internal.utils import get_args_parser
+
+    try:
+        args, _ = get_args_parser().parse_known_args(argv)
+    except SystemExit:
+        return  # Hydra reports the bad command line itself
+    if args.multirun or args.config_dir is not None:
+        return
+    conf_dir = Path(args.config_path or CONF_DIR)
+    if not conf_dir.is_absolute():
+        return
+    if is_single_run(conf_dir, args.config_name or CONF_NAME, list(args.overrides)):
+        # What Hydra's get_mode returns when nothing sets hydra.mode: a plain run.
+        Hydra.get_mode = lambda self, config_name, overrides: None
+
+
 def main() -> None:
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    # MLflow takes seconds to import: let the tracking worker do it while Hydra composes.
-    if not any(a in ("--help", "-h", "--cfg", "-c", "--info", "--hydra-help") for a in sys.argv[1:]):
-        prestart_worker()
-    _app()
+    argv = sys.argv[1:]
+    if any(a in INFO_FLAGS for a in argv):
+        return _hydra_app()()
+    # MLflow takes seconds to import: the tracking worker starts first and imports it while this
+    # process imports Hydra, composes, hashes and plans.
+    prestart_worker()
+    _compose_once_if_single_run(argv)
+    _hydra_app()()
+
+
+def _hydra_app():
+    import hydra
+
+    return hydra.main(version_base="1.3", config_path=CONF_DIR, config_name=CONF_NAME)(_app)

@@ -8,8 +8,6 @@ import json
 import os
 import subprocess
 import sys
-import urllib.error
-import urllib.request
 from pathlib import Path
 
 from pipeline.errors import PipelineError
@@ -24,6 +22,9 @@ def check_server(uri: str, timeout: float = 3.0) -> None:
         raise PipelineError(
             f"tracking.require_server is true but tracking.uri={uri!r} is not an http(s) server URI"
         )
+    import urllib.error  # lazily: the CLI imports this module before it starts the tracking worker
+    import urllib.request
+
     url = uri.rstrip("/") + "/health"
     try:
         with urllib.request.urlopen(url, timeout=timeout) as response:
