@@ -279,6 +279,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
         parent_metrics[f"{name}.seconds"] = r["seconds"]
     tracker.log(parent_id, metrics=parent_metrics)
     tracker.end(parent_id, "FINISHED")
+    tracker.flush()  # the record is complete (or its error raised) before the summary says so
     summary = {
         "pipeline_seconds": total,
         "up_to_date": all(r["hit"] for r in results.values()),

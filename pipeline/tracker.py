@@ -68,12 +68,21 @@ class InProcessTracker:
     def __getattr__(self, op):
         return getattr(self._ops, op)
 
+    def flush(self) -> None:
+        pass  # every call has already completed
+
     def close(self) -> None:
         pass
 
 
 class WorkerTracker:
-    """MLflow calls forwarded to ``python -m pipeline.mlflow_worker`` (see that module for why)."""
+    """MLflow calls forwarded to ``python -m pipeline.mlflow_worker`` (see that module for why).
+
+    Only ``create_run`` waits for its answer (the engine needs the run id); ``init``, ``log``, ``end`` and
+    ``log_artifacts`` are posted without waiting, so the worker works through them while the engine goes
+    on. Their errors are raised by the next call that waits, or by ``flush``: a failed call is never
+    silent, it is reported one step later.
+    """
 
     def __init__(self):
         env = dict(os.environ)
@@ -83,47 +92,72 @@ class WorkerTracker:
             [sys.executable, "-m", "pipeline.mlflow_worker"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
         )
-        self._opened = False
+        self._pending: list[str] = []  # ops sent whose replies are not read yet, oldest first
+        self._uri = ""
 
     def open(self, uri: str, experiment: str) -> None:
-        try:
-            self._call("init", uri=uri, experiment=experiment)
-        except PipelineError as exc:
-            raise PipelineError(f"cannot open MLflow tracking store {uri!r}: {exc}") from exc
-        self._opened = True
+        self._uri = uri
+        self._send("init", {"uri": uri, "experiment": experiment})
 
-    def _call(self, op: str, **args):
+    def _send(self, op: str, args: dict) -> None:
         try:
             self._proc.stdin.write(json.dumps({"op": op, "args": args}) + "\n")
             self._proc.stdin.flush()
-            line = self._proc.stdout.readline()
         except (BrokenPipeError, OSError):
-            line = ""
-        if not line:
-            raise PipelineError("the MLflow tracking worker exited unexpectedly (see its messages above)")
-        reply = json.loads(line)
-        if not reply["ok"]:
-            raise PipelineError(f"MLflow '{op}' failed: {reply['error']}")
-        return reply["result"]
+            self._exited()
+        self._pending.append(op)
+
+    def _exited(self):
+        raise PipelineError("the MLflow tracking worker exited unexpectedly (see its messages above)")
+
+    def _receive(self):
+        """Read the replies of every op sent so far; the last one's result, or the first error."""
+        result, error = None, None
+        while self._pending:
+            op = self._pending.pop(0)
+            try:
+                line = self._proc.stdout.readline()
+            except OSError:
+                line = ""
+            if not line:
+                self._exited()
+            reply = json.loads(line)
+            if not reply["ok"] and error is None:
+                error = f"MLflow '{op}' failed: {reply['error']}"
+                if op == "init":
+                    error = f"cannot open MLflow tracking store {self._uri!r}: {error}"
+            result = reply.get("result")
+        if error is not None:
+            raise PipelineError(error)
+        return result
+
+    def _call(self, op: str, **args):
+        self._send(op, args)
+        return self._receive()
 
     def create_run(self, run_name, tags, parent_id=None):
         return self._call("create_run", run_name=run_name, tags=tags, parent_id=parent_id)
 
     def log(self, run_id, metrics=None, params=None, tags=None):
-        return self._call("log", run_id=run_id, metrics=metrics, params=params, tags=tags)
+        self._send("log", {"run_id": run_id, "metrics": metrics, "params": params, "tags": tags})
 
     def log_artifacts(self, run_id, directory):
-        return self._call("log_artifacts", run_id=run_id, directory=directory)
+        self._send("log_artifacts", {"run_id": run_id, "directory": directory})
 
     def end(self, run_id, status="FINISHED"):
-        return self._call("end", run_id=run_id, status=status)
+        self._send("end", {"run_id": run_id, "status": status})
+
+    def flush(self) -> None:
+        """Wait until the worker has done every op sent so far; raise the first that failed."""
+        self._receive()
 
     def close(self) -> None:
+        """Let the worker finish what was sent (a failing run still gets its FAILED end), then stop it."""
         if self._proc.poll() is None:
             try:
                 self._call("close")
             except PipelineError:
-                pass
+                pass  # already reported by flush on success; on failure the original error matters
             self._proc.stdin.close()
             try:
                 self._proc.wait(timeout=10)
@@ -150,9 +184,5 @@ def open_tracker(uri: str, experiment: str, in_process: bool | None = None):
     if in_process:
         return InProcessTracker(uri, experiment)
     worker, _prestarted = (_prestarted or WorkerTracker()), None
-    try:
-        worker.open(uri, experiment)
-    except PipelineError:
-        worker.close()
-        raise
+    worker.open(uri, experiment)  # answered with the first create_run: a bad store fails before any stage
     return worker
