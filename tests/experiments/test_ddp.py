@@ -18,11 +18,7 @@ def test_ddp_trains_relation_on_two_cpu_processes_logs_once_and_saves_loadable_w
 
     db = tmp_path / "ddp.db"
     uri = f"sqlite:///{db}"
-    # The smallest relation network (what is checked is DDP, not the network): less to pickle into the
-    # spawned ranks, to train and to checkpoint.
-    small_net = ["relation/backbone=conv_fc", "relation.model.hidden=32", "relation.model.embed_dim=16",
-                 "relation.model.gat_hidden=16"]
-    proc = run_pipeline(tmp_path, [*TINY, *small_net, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
+    proc = run_pipeline(tmp_path, [*TINY, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
                                    "relation.train.epochs=2", "relation.train.patience=5", "pipeline.until=relation"],
                         uri, cache=smoke_store["dir"] / "cache")
     log = proc.stdout + proc.stderr
