@@ -19,6 +19,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from stages.checkpoints import best_and_latest
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
 
@@ -61,7 +62,7 @@ def _tracking_logger():
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import lightning as L
     import torch
-    from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+    from lightning.pytorch.callbacks import EarlyStopping
     from omegaconf import OmegaConf
 
     from stages.priors.mixture import load_priors
@@ -95,9 +96,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                             optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)})
     data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip))
     ckpt_dir = out_dir / "checkpoints"
-    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=MONITOR, mode="max", save_last=True)
+    checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
-    callbacks = [checkpoint, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)), history]
+    callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
+                 history]
     logger = _tracking_logger()
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
                         strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=tr.precision,

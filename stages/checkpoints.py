@@ -1,0 +1,23 @@
+"""The checkpoint callbacks every training stage uses: the best epoch by a monitored metric, and the latest
+epoch (``last.ckpt``) for resuming after a crash and for reading back what ``ddp_spawn`` ranks trained.
+
+Lightning's own ``save_last=True`` writes ``last.ckpt`` only in epochs that also saved a best
+checkpoint, so after an epoch without improvement it would hold an older epoch: resuming would repeat
+work and the curves read back from it would miss epochs. The latest epoch therefore has its own
+unmonitored callback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+LAST = "last"
+
+
+def best_and_latest(ckpt_dir: Path, monitor: str, mode: str, best_name: str = "best") -> tuple:
+    """(best-epoch callback ``<best_name>.ckpt``, latest-epoch callback ``last.ckpt``)."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    best = ModelCheckpoint(dirpath=ckpt_dir, filename=best_name, monitor=monitor, mode=mode,
+                           auto_insert_metric_name=False)
+    latest = ModelCheckpoint(dirpath=ckpt_dir, filename=LAST, monitor=None, save_top_k=1, enable_version_counter=False)
+    return best, latest
