@@ -7,8 +7,7 @@ Per image, every annotated object becomes a node:
 Edges: the adjacency holds the Gaussian-mixture priors of wheel-vehicle pairs (both directions) and
 wheel-wheel pairs, self-loops for valid nodes, zeros for vehicle-vehicle pairs and masked nodes. A
 *candidate* pair is a wheel-vehicle or wheel-wheel pair of two valid nodes whose prior reaches
-``min_prior`` and, for wheel-vehicle pairs, whose wheel box lies at least ``min_containment`` inside the
-vehicle box; only candidates carry edges, are trained on and can be predicted.
+``min_prior``; only candidates are trained on and only candidates can be predicted.
 Targets: 0/1 ownership (wheel-vehicle, symmetric), couples (wheel-wheel, symmetric) and each wheel's
 role (1 front, 0 rear, -1 unknown) from the relation's role or the couple order (rear first).
 """
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.geometry import containment, pairwise_distance_ratio
+from stages.geometry import pairwise_distance_ratio
 from stages.word_format import VEHICLE, WHEEL, Record
 
 PriorFn = Callable[[np.ndarray], np.ndarray]
@@ -40,7 +39,6 @@ class InputConfig:
     small_mask_px: float = 0.0
     adjacency: str = "prior"
     min_prior: float = 0.0
-    min_containment: float = 0.0  # 0: the paper's candidates; relation.yaml's default is the addition
 
     def __post_init__(self):
         if self.adjacency not in ADJACENCY_MODES:
@@ -51,15 +49,12 @@ class InputConfig:
             raise ValueError(f"relation.max_objects must be >= 1, got {self.max_objects}")
         if self.margin < 0:
             raise ValueError(f"relation.margin must be >= 0, got {self.margin}")
-        if not 0.0 <= self.min_containment <= 1.0:
-            raise ValueError(f"relation.min_containment must be in [0, 1], got {self.min_containment}")
 
     @classmethod
     def from_cfg(cls, rel) -> InputConfig:
         return cls(input_size=int(rel.backbone.input_size), margin=float(rel.margin),
                    max_objects=int(rel.max_objects), small_mask_px=float(rel.small_mask_px),
-                   adjacency=str(rel.adjacency), min_prior=float(rel.min_prior),
-                   min_containment=float(rel.min_containment))
+                   adjacency=str(rel.adjacency), min_prior=float(rel.min_prior))
 
 
 # --- crops ------------------------------------------------------------------------------------------
@@ -150,22 +145,13 @@ def pair_priors(xyxy: np.ndarray, classes: np.ndarray, width: float, height: flo
     return np.clip(out, 0.0, 1.0)
 
 
-def candidate_pairs(classes: np.ndarray, valid: np.ndarray, priors: np.ndarray, min_prior: float,
-                    xyxy: np.ndarray | None = None, min_containment: float = 0.0) -> np.ndarray:
+def candidate_pairs(classes: np.ndarray, valid: np.ndarray, priors: np.ndarray, min_prior: float) -> np.ndarray:
     """(N, N) bool: wheel-vehicle (either order) or wheel-wheel pairs of two valid, distinct nodes whose
-    prior reaches ``min_prior`` (0: every such pair; ablation fewer_neg raises it). With
-    ``min_containment`` > 0, a wheel-vehicle pair also needs that share of the wheel box's area inside the
-    vehicle box (``xyxy``): a vehicle's box covers its visible wheels, so a wheel sticking out of it belongs
-    to another, possibly unannotated, vehicle."""
+    prior reaches ``min_prior`` (0: every such pair; ablation fewer_neg raises it)."""
     is_wheel, is_vehicle = classes == WHEEL, classes == VEHICLE
     both_valid = valid[:, None] & valid[None, :]
     wv = (is_wheel[:, None] & is_vehicle[None, :]) | (is_vehicle[:, None] & is_wheel[None, :])
     ww = is_wheel[:, None] & is_wheel[None, :] & ~np.eye(len(classes), dtype=bool)
-    if min_containment > 0 and len(classes):
-        if xyxy is None:
-            raise ValueError("candidate_pairs: min_containment needs the boxes (xyxy)")
-        inside = containment(xyxy, xyxy) >= min_containment  # [i, j]: box i lies inside box j
-        wv = (is_wheel[:, None] & is_vehicle[None, :] & inside) | (is_vehicle[:, None] & is_wheel[None, :] & inside.T)
     cand = (wv | ww) & both_valid
     return cand & (priors >= min_prior) if min_prior > 0 else cand
 
@@ -216,7 +202,7 @@ def build_graph(rec: Record, rgb: np.ndarray, cfg: InputConfig, wheel_vehicle: P
     classes = rec.class_ids.astype(np.int8)
     valid = node_validity(rec.xyxy, cfg.small_mask_px)
     priors = pair_priors(rec.xyxy, classes, rec.width, rec.height, wheel_vehicle, wheel_wheel)
-    cand = candidate_pairs(classes, valid, priors, cfg.min_prior, rec.xyxy, cfg.min_containment)
+    cand = candidate_pairs(classes, valid, priors, cfg.min_prior)
     return ImageGraph(crops=crop_objects(rgb, rec.xyxy, cfg.input_size, cfg.margin),
                       coords=normalised_boxes(rec.xyxy, rec.width, rec.height), classes=classes, valid=valid,
                       adj=adjacency(priors, cand, valid, cfg.adjacency).astype(np.float32), cand=cand)

@@ -110,20 +110,3 @@ def test_too_many_objects_fail_naming_the_image():
     recs = rd.records(2)
     with pytest.raises(ValueError, match=r"images/left/00000\.png.*max_objects=2"):
         check_object_counts(recs, 2)
-
-
-def test_min_containment_drops_wheel_vehicle_pairs_whose_wheel_sticks_out_of_the_vehicle_box():
-    # vehicle 0; wheel 1 fully inside it; wheel 2 half outside its bottom edge; wheel 3 far away
-    xyxy = np.array([[0, 0, 100, 50], [10, 30, 20, 40], [50, 45, 60, 55], [200, 0, 210, 10]], dtype=float)
-    classes = np.array([0, 1, 1, 1], dtype=np.int8)
-    valid, priors = np.ones(4, dtype=bool), np.full((4, 4), 0.5)
-    paper = candidate_pairs(classes, valid, priors, 0.0)
-    assert paper[0, 1] and paper[0, 2] and paper[0, 3]
-    cand = candidate_pairs(classes, valid, priors, 0.0, xyxy, 0.8)
-    assert cand[0, 1] and cand[1, 0]                        # inside: kept, both orders
-    assert not cand[0, 2] and not cand[2, 0]                # 50 % inside < 0.8: dropped
-    assert not cand[0, 3] and not cand[3, 0]
-    assert cand[1, 2] and cand[2, 3]                        # wheel-wheel pairs are not affected
-    assert candidate_pairs(classes, valid, priors, 0.0, xyxy, 0.5)[0, 2]  # exactly half inside reaches 0.5
-    with pytest.raises(ValueError, match="min_containment"):
-        InputConfig(min_containment=1.5)
