@@ -29,12 +29,26 @@ def _is_row_best(masked: np.ndarray) -> np.ndarray:
     return np.arange(masked.shape[-1]) == best
 
 
+def inside_share(coords: np.ndarray) -> np.ndarray:
+    """(B, N, 4) boxes -> (B, N, N): the share of row box i's area that lies inside column box j."""
+    x1, y1, x2, y2 = (coords[..., k] for k in range(4))
+    iw = np.clip(np.minimum(x2[:, :, None], x2[:, None, :]) - np.maximum(x1[:, :, None], x1[:, None, :]), 0, None)
+    ih = np.clip(np.minimum(y2[:, :, None], y2[:, None, :]) - np.maximum(y1[:, :, None], y1[:, None, :]), 0, None)
+    return iw * ih / np.maximum((x2 - x1) * (y2 - y1), 1e-12)[:, :, None]
+
+
 def decode_owners(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, threshold: float,
-                  one_owner: bool) -> np.ndarray:
+                  one_owner: bool, coords: np.ndarray | None = None, min_containment: float = 0.0) -> np.ndarray:
     """Every candidate wheel-vehicle pair above threshold, or (one_owner) each wheel's best vehicle if
-    its score is above threshold."""
+    its score is above threshold; with ``min_containment`` > 0 only vehicles whose box holds that share
+    of the wheel box (``coords``)."""
     wv, _ = type_masks(classes)
-    masked = np.where(wv & cand.astype(bool), scores, _BELOW_ANY_COSINE)
+    allowed = wv & cand.astype(bool)
+    if min_containment > 0:
+        if coords is None:
+            raise ValueError("decode_owners: min_containment needs the boxes (coords)")
+        allowed &= inside_share(coords) >= min_containment
+    masked = np.where(allowed, scores, _BELOW_ANY_COSINE)
     above = masked > threshold
     return above & _is_row_best(masked) if one_owner else above
 

@@ -98,6 +98,7 @@ class OnnxRelation:
         self.threshold = float(meta["decode"]["threshold"])
         self.one_owner = bool(meta["decode"]["one_owner"])
         self.has_roles = bool(meta["has_roles"])
+        self.min_containment = float(meta["decode"].get("min_containment", 0.0))
         self.priors = load_priors(bundle_dir / PRIORS_FILE)
         self.session = ort_session(bundle_dir / RELATION_FILES[variant], threads)
         self.static_n = self.inputs.max_objects if variant == "static" else None
@@ -107,11 +108,11 @@ class OnnxRelation:
 
         return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
 
-    def scores(self, graphs: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(owner, couple, front, classes, cand) for a batch of graphs."""
+    def scores(self, graphs: Sequence) -> tuple[np.ndarray, ...]:
+        """(owner, couple, front, classes, cand, coords) for a batch of graphs."""
         feed, classes = pad_graphs(graphs, self.inputs.input_size, self.static_n)
         owner, couple, front = self.session.run(list(RELATION_OUTPUTS), feed)
-        return owner, couple, front, classes, feed["cand"]
+        return owner, couple, front, classes, feed["cand"], feed["coords"]
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
@@ -125,8 +126,8 @@ class OnnxRelation:
         """Records with decided relations, from their already built graphs (one batch)."""
         from stages.relation.predict import prediction_record
 
-        owner, couple, front, classes, cand = self.scores(graphs)
-        pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner)
+        owner, couple, front, classes, cand, coords = self.scores(graphs)
+        pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner, coords, self.min_containment)
         pred_couple = decode_couples(couple, classes, cand, self.threshold)
         return [prediction_record(rec, pred_owner[i], pred_couple[i], front[i], self.has_roles)
                 for i, rec in enumerate(records)]

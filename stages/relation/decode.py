@@ -21,12 +21,28 @@ def type_masks(classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return wv, ww
 
 
+def inside_share(coords: torch.Tensor) -> torch.Tensor:
+    """(B, N, 4) boxes -> (B, N, N): the share of row box i's area that lies inside column box j. The
+    share is invariant to scaling x and y, so normalised boxes give the pixel boxes' value."""
+    x1, y1, x2, y2 = coords.unbind(-1)
+    iw = (torch.minimum(x2.unsqueeze(2), x2.unsqueeze(1)) - torch.maximum(x1.unsqueeze(2), x1.unsqueeze(1))).clamp_min(0)
+    ih = (torch.minimum(y2.unsqueeze(2), y2.unsqueeze(1)) - torch.maximum(y1.unsqueeze(2), y1.unsqueeze(1))).clamp_min(0)
+    return iw * ih / ((x2 - x1) * (y2 - y1)).clamp_min(1e-12).unsqueeze(2)
+
+
 def decode_owners(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tensor, threshold: float,
-                  one_owner: bool) -> torch.Tensor:
+                  one_owner: bool, coords: torch.Tensor | None = None, min_containment: float = 0.0) -> torch.Tensor:
     """Owner decisions: every candidate wheel-vehicle pair above threshold, or (one_owner) each wheel's
-    best-scoring vehicle if that score is above threshold."""
+    best-scoring vehicle if that score is above threshold. With ``min_containment`` > 0 a wheel can only
+    go to a vehicle whose box holds at least that share of the wheel box (``coords``, (B, N, 4)): a
+    vehicle's box covers its visible wheels, so a wheel sticking out of it belongs to another vehicle,
+    often one too occluded to be annotated."""
     wv, _ = type_masks(classes)
     allowed = wv & cand.bool()
+    if min_containment > 0:
+        if coords is None:
+            raise ValueError("decode_owners: min_containment needs the boxes (coords)")
+        allowed = allowed & (inside_share(coords) >= min_containment)
     masked = torch.where(allowed, scores, torch.full_like(scores, -2.0))  # cosines are >= -1
     above = masked > threshold
     if not one_owner:

@@ -176,7 +176,8 @@ class RelationModule(L.LightningModule):
     def decide(self, outputs, batch):
         dc = self.hparams.decode
         owner_scores, couple_scores, _ = outputs
-        pred_owner = decode_owners(owner_scores, batch["classes"], batch["cand"], dc["threshold"], dc["one_owner"])
+        pred_owner = decode_owners(owner_scores, batch["classes"], batch["cand"], dc["threshold"], dc["one_owner"],
+                                   batch["coords"], dc.get("min_containment", 0.0))
         pred_couple = decode_couples(couple_scores, batch["classes"], batch["cand"], dc["threshold"])
         return pred_owner, pred_couple
 

@@ -32,6 +32,7 @@ class RelationPredictor:
         self.inputs = InputConfig(**meta["inputs"])
         self.threshold = float(meta["decode"]["threshold"])
         self.one_owner = bool(meta["decode"]["one_owner"])
+        self.min_containment = float(meta["decode"].get("min_containment", 0.0))
         self.has_roles = bool(meta["has_roles"])
         self.priors = priors
 
@@ -65,7 +66,7 @@ class RelationPredictor:
             classes[i, :k] = torch.from_numpy(g.classes.astype(np.int64))
         with torch.no_grad():
             owner, couple, front = self.net(node_tensor(crops, coords), adj, cand)
-        return owner, couple, front, classes, cand
+        return owner, couple, front, classes, cand, coords
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
@@ -75,8 +76,9 @@ class RelationPredictor:
         for start in range(0, len(records), batch_size):
             chunk = records[start:start + batch_size]
             graphs = [self.graph(rec, load_rgb(rec)) for rec in chunk]
-            owner, couple, front, classes, cand = self.scores(graphs)
-            pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner)
+            owner, couple, front, classes, cand, coords = self.scores(graphs)
+            pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner, coords,
+                                       self.min_containment)
             pred_couple = decode_couples(couple, classes, cand, self.threshold)
             for i, rec in enumerate(chunk):
                 out.append(prediction_record(rec, pred_owner[i].numpy(), pred_couple[i].numpy(), front[i].numpy(),

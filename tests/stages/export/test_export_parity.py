@@ -171,15 +171,20 @@ def test_int8_model_keeps_decisions_mostly(exported):
     assert metrics["export.relation.int8.parity_max_abs_diff"] > 0  # it is a different (quantised) model
 
 
-@pytest.mark.parametrize("one_owner", [True, False])
-def test_numpy_decoding_equals_the_training_decoding(one_owner):
+@pytest.mark.parametrize("one_owner,min_containment", [(True, 0.0), (False, 0.0), (True, 0.5), (False, 0.5)])
+def test_numpy_decoding_equals_the_training_decoding(one_owner, min_containment):
     rng = np.random.default_rng(1)
     scores = rng.uniform(-1, 1, (4, 9, 9)).astype(np.float32)
     scores[:, :, 3] = scores[:, :, 4]  # ties: both pick the first
     classes = rng.integers(-1, 2, (4, 9))
     cand = (rng.random((4, 9, 9)) > 0.3).astype(np.float32)
+    corner = rng.uniform(0, 0.7, (4, 9, 2))
+    coords = np.concatenate([corner, corner + rng.uniform(0.05, 0.5, (4, 9, 2))], -1).astype(np.float32)
     t = [torch.from_numpy(a) for a in (scores, classes, cand)]
-    np.testing.assert_array_equal(decode_owners(scores, classes, cand, 0.2, one_owner),
-                                  torch_decode.decode_owners(*t, 0.2, one_owner).numpy())
+    numpy_owners = decode_owners(scores, classes, cand, 0.2, one_owner, coords, min_containment)
+    np.testing.assert_array_equal(numpy_owners, torch_decode.decode_owners(
+        *t, 0.2, one_owner, torch.from_numpy(coords), min_containment).numpy())
+    if min_containment:  # the rule is active on these boxes
+        assert numpy_owners.sum() < decode_owners(scores, classes, cand, 0.2, one_owner).sum()
     np.testing.assert_array_equal(decode_couples(scores, classes, cand, 0.2),
                                   torch_decode.decode_couples(*t, 0.2).numpy())

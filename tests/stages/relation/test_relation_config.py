@@ -24,6 +24,7 @@ ABLATIONS = {
     "no_gat": {"relation.model.gat": False},
     "no_edge_geometry": {"relation.model.edge_geometry": False},
     "no_prior": {"relation.adjacency": "uniform"},
+    "no_containment": {"relation.decode.min_containment": 0.0},
 }
 
 

@@ -112,6 +112,26 @@ def test_one_owner_decode_keeps_each_wheels_best_vehicle_above_threshold():
     assert decode_owners(scores, classes, cand, 0.5, True)[0, 2].tolist() == [False, True, False, False]
 
 
+def test_min_containment_gives_a_wheel_sticking_out_of_its_best_vehicle_to_the_next_or_to_none():
+    classes = torch.tensor([[0, 0, 1, 1]])
+    # vehicle 0 (big), vehicle 1 (inside-left of 0), wheel 2 inside both, wheel 3 half below vehicle 0's box
+    coords = torch.tensor([[[0.0, 0.0, 0.8, 0.5], [0.0, 0.1, 0.3, 0.45], [0.1, 0.3, 0.2, 0.4], [0.5, 0.45, 0.6, 0.55]]])
+    cand = torch.ones(1, 4, 4)
+    scores = torch.zeros(1, 4, 4)
+    scores[0, 2, 0], scores[0, 2, 1] = 0.9, 0.7   # wheel 2 prefers vehicle 0; both boxes hold it
+    scores[0, 3, 0] = 0.9                          # wheel 3 prefers vehicle 0, which holds only half of it
+    paper = decode_owners(scores, classes, cand, 0.5, True)
+    assert paper[0, 2].tolist() == [True, False, False, False] and paper[0, 3].tolist() == [True, False, False, False]
+    ruled = decode_owners(scores, classes, cand, 0.5, True, coords, 0.8)
+    assert ruled[0, 2].tolist() == [True, False, False, False]   # unchanged: it lies inside its best vehicle
+    assert not ruled[0, 3].any()                                   # half inside < 0.8: no owner
+    assert decode_owners(scores, classes, cand, 0.5, True, coords, 0.5)[0, 3].tolist() == [True, False, False, False]
+    scores[0, 2, 0] = 0.0                                          # then it takes the next vehicle holding it
+    assert decode_owners(scores, classes, cand, 0.5, True, coords, 0.8)[0, 2].tolist() == [False, True, False, False]
+    with pytest.raises(ValueError, match="coords"):
+        decode_owners(scores, classes, cand, 0.5, True, None, 0.8)
+
+
 def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     classes = torch.tensor([[0, 1, 1, 1]])
     cand = torch.ones(1, 4, 4)
