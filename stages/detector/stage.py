@@ -73,8 +73,8 @@ def check_crop(crop: list[int] | None, multiple: int) -> None:
 def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import lightning as L
     import torch
-    from lightning.pytorch.callbacks import ModelCheckpoint
 
+    from stages.checkpoints import best_and_latest
     from stages.detector.curves import plot_curves
     from stages.detector.lightning import CenterNetModule, DetectorDataModule
     from stages.detector.model import build_centernet, model_config, save_detector
@@ -94,14 +94,13 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
                               det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
-    checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="best", monitor="val/ap50", mode="max",
-                                 save_last=True, auto_insert_metric_name=False)
+    checkpoint, latest = best_and_latest(out_dir / "checkpoints", "val/ap50", "max")
     trainer = L.Trainer(
         max_epochs=det["epochs"], limit_train_batches=det["limit_train_batches"],
         limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
-        precision=trainer_cfg.get("precision", "32-true"), logger=_loggers(out_dir), callbacks=[checkpoint],
+        precision=trainer_cfg.get("precision", "32-true"), logger=_loggers(out_dir), callbacks=[checkpoint, latest],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()
@@ -111,7 +110,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     train_seconds = time.perf_counter() - started
 
     net = build_centernet(mcfg)
-    _load_best_weights(net, checkpoint.best_model_path or checkpoint.last_model_path)
+    _load_best_weights(net, checkpoint.best_model_path or str(last))
     save_detector(out_dir, net, mcfg)
 
     metrics = {"detector.train_seconds": train_seconds, "detector.epochs": float(trainer.current_epoch)}
