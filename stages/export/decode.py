@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stages.geometry import containment
 from stages.word_format import VEHICLE, WHEEL
 
 _BELOW_ANY_COSINE = -2.0  # masked entries: cosines are >= -1
@@ -29,14 +30,6 @@ def _is_row_best(masked: np.ndarray) -> np.ndarray:
     return np.arange(masked.shape[-1]) == best
 
 
-def inside_share(coords: np.ndarray) -> np.ndarray:
-    """(B, N, 4) boxes -> (B, N, N): the share of row box i's area that lies inside column box j."""
-    x1, y1, x2, y2 = (coords[..., k] for k in range(4))
-    iw = np.clip(np.minimum(x2[:, :, None], x2[:, None, :]) - np.maximum(x1[:, :, None], x1[:, None, :]), 0, None)
-    ih = np.clip(np.minimum(y2[:, :, None], y2[:, None, :]) - np.maximum(y1[:, :, None], y1[:, None, :]), 0, None)
-    return iw * ih / np.maximum((x2 - x1) * (y2 - y1), 1e-12)[:, :, None]
-
-
 def decode_owners(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, threshold: float,
                   one_owner: bool, coords: np.ndarray | None = None, min_containment: float = 0.0) -> np.ndarray:
     """Every candidate wheel-vehicle pair above threshold, or (one_owner) each wheel's best vehicle if
@@ -47,7 +40,7 @@ def decode_owners(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, thr
     if min_containment > 0:
         if coords is None:
             raise ValueError("decode_owners: min_containment needs the boxes (coords)")
-        allowed &= inside_share(coords) >= min_containment
+        allowed &= np.stack([containment(boxes, boxes) for boxes in coords]) >= min_containment
     masked = np.where(allowed, scores, _BELOW_ANY_COSINE)
     above = masked > threshold
     return above & _is_row_best(masked) if one_owner else above
