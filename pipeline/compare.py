@@ -127,12 +127,12 @@ def load_runs(client, experiment_id: str, profile: str | None) -> list[RunRecord
             return runs
 
 
-def pick(runs: list[RunRecord], row: Row, needed: str) -> RunRecord | None:
-    """The newest run of ``row``'s configuration that has the metric ``needed``."""
-    for run in runs:  # newest first
-        if needed in run.metrics and matches(row, run.params):
-            return run
-    return None
+def pick(runs: list[RunRecord], row: Row, needed: str, experiment: str | None = None) -> RunRecord | None:
+    """The newest run of ``row``'s configuration that has the metric ``needed``; with ``experiment``, a run
+    of that sweep first (its rows share one training budget, DESIGN §8), else any run of the row."""
+    found = [run for run in runs if needed in run.metrics and matches(row, run.params)]  # newest first
+    own = [run for run in found if _value(run.params.get("experiment_name")) == experiment]
+    return (own or found or [None])[0]
 
 
 def _fmt(value) -> str:
@@ -163,12 +163,12 @@ class Table:
             writer.writerows([["" if c is None else c for c in row] for row in self.rows])
 
 
-def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord]) -> tuple[Table, dict]:
+def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], experiment: str) -> tuple[Table, dict]:
     header = ["Row", "params", "ms/img b1 (ours)", "ms/img b1 (paper)", "wheel_acc mixed (ours)",
               "image_acc mixed (ours)", "accuracy (paper)", "run"]
     out, used = [], {}
     for row in rows:
-        run = pick(runs, row, ACC_METRIC)
+        run = pick(runs, row, ACC_METRIC, experiment)
         m = run.metrics if run else {}
         params = m.get(PARAMS_METRIC)
         out.append([row.label, None if params is None else int(params), m.get(LATENCY_METRIC), None,
@@ -184,8 +184,7 @@ def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord]) -> 
 
 def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
     needed = "eval.gt.logic.mixed.wheel_acc"
-    run = next((r for r in runs if needed in r.metrics and _value(r.params.get("experiment_name")) == "table3"),
-               None) or pick(runs, TABLE3_ROW, needed)
+    run = pick(runs, TABLE3_ROW, needed, "table3")
     m = run.metrics if run else {}
     header = ["Method"]
     for s in SUBSETS:
@@ -261,8 +260,8 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     if found is None:
         raise SystemExit(f"error: no MLflow experiment {experiment!r} in {uri}; run the pipeline first")
     runs = load_runs(client, found.experiment_id, profile)
-    t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs)
-    t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs)
+    t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs, "table1")
+    t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2")
     t3, used3 = table3(runs)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]

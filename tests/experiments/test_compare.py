@@ -44,6 +44,8 @@ def filled_store(tmp_path_factory):
         "neg0.1": _parent(ops, ["experiment=table2", "table2_row=neg0.1"], _eval(70.0), "smoke table2_row=neg0.1"),
         "default": _parent(ops, ["experiment=table3"], _eval(90.0), "smoke experiment=table3"),
     }
+    # Newer, but not of the Table 2 sweep (another training budget): Table 2 keeps its sweep's run.
+    ids["neg0.1_single"] = _parent(ops, ["table2_row=neg0.1"], _eval(60.0), "smoke table2_row=neg0.1")
     # Must be ignored: a newer -Sma run that stopped before evaluation, a child run carrying a row's
     # params, and a previous comparison run.
     _parent(ops, ["table2_row=small_mask"], {"relation.params": 1.0}, "smoke until relation")
@@ -78,7 +80,7 @@ def test_tables_pick_each_rows_run_and_set_paper_numbers_beside_ours(store, tmp_
     assert float(t1["Conv+fc"][4]) == 78.0 and float(t1["ResNet-18"][4]) == 83.0  # mixed = base - 2
     assert t1["ResNet-18"][3] == ""  # paper latency unknown: left empty, shown n/a in markdown
     t2 = _csv(out / "table2.csv")
-    assert float(t2["Neg0.1"][4]) == 68.0
+    assert float(t2["Neg0.1"][4]) == 68.0 and result["sources"]["table2.Neg0.1"] == ids["neg0.1"]
     assert float(t2["Conv+fc"][4]) == 78.0          # the Table 1 run serves Table 2's base row too
     assert t2["-Sma"][4] == "" and t2["56"][4] == ""  # no evaluated run of these configurations
     assert result["sources"]["table1.ResNet-18"] == ids["resnet18"]

@@ -42,6 +42,27 @@ def test_table3_is_one_job_of_the_default_configuration():
     assert compose_config(["experiment=table3"])["relation"] == compose_config([])["relation"]
 
 
+@pytest.mark.parametrize("profile", ["smoke", "quick", "full"])
+def test_ablation_sweeps_train_every_row_with_the_profiles_sweep_budget(profile):
+    pipeline_run = compose_config([f"profile={profile}"])
+    budget = pipeline_run["sweep"]
+    for overrides in (["experiment=table1", "relation/backbone=conv_fc"], ["experiment=table1", "relation/backbone=resnet18"],
+                      ["experiment=table2", "table2_row=small_mask"], ["experiment=table2", "table2_row=ex4"]):
+        row = compose_config([*overrides, f"profile={profile}"])
+        train = row["relation"]["train"]
+        assert (train["epochs"], train["patience"]) == (budget["relation_epochs"], budget["relation_patience"])
+        assert {k: v for k, v in train.items() if k not in ("epochs", "patience")} == \
+            {k: v for k, v in pipeline_run["relation"]["train"].items() if k not in ("epochs", "patience")}
+    if profile == "quick":  # the point of the budget: the sweeps' rows train shorter than the pipeline's
+        assert budget["relation_epochs"] < pipeline_run["relation"]["train"]["epochs"]
+
+
+def test_table1_compares_both_backbones_on_the_same_crops():
+    sizes = {b: compose_config(["experiment=table1", f"relation/backbone={b}"])["relation"]["backbone"]["input_size"]
+             for b in ("conv_fc", "resnet18")}
+    assert sizes == {"conv_fc": 28, "resnet18": 28}
+
+
 def test_each_table2_row_is_the_configuration_compare_reads_as_that_row():
     names = ["conv_fc", "neg0.1", "fewer_neg", "small_mask", "input56", "ex4"]
     for name, row in zip(names, TABLE2, strict=True):
