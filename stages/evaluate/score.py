@@ -5,7 +5,8 @@
 ROOT is a dataset directory (``labels.jsonl`` + images) or a data stage's output (``dataset.json``).
 All its images are scored, split into easy / hard / mixed by ``word_format.difficulty_subsets``. An image
 missing from the predictions counts as predicted with no relations; a prediction for an image the
-dataset does not have is an error. Bad input exits with code 2 and a file:line:field message.
+dataset does not have, or made at another resolution (its width/height differ from the ground truth's:
+its boxes would be in other pixel units), is an error. Bad input exits with code 2 and a file:line:field message.
 """
 
 from __future__ import annotations
@@ -38,23 +39,28 @@ def load_ground_truth(root: Path) -> tuple[Path, list[Record]]:
     return root, read_records(root / LABELS_FILE, root=root)
 
 
-def load_predictions(path: Path, root: Path, known: set[str]) -> dict[str, Record]:
-    """Validated predictions by image; every image must exist in the ground truth."""
+def load_predictions(path: Path, root: Path, gts: dict[str, Record]) -> dict[str, Record]:
+    """Validated predictions by image; every image must exist in the ground truth, at its resolution."""
     if not path.is_file():
         raise ScoreError(f"{path}: predictions file not found")
     records = read_records(path, root=root, allow_empty=True)
     for rec in records:
-        if rec.image not in known:
-            file, line = rec.source or (str(path), None)
+        file, line = rec.source or (str(path), None)
+        gt = gts.get(rec.image)
+        if gt is None:
             raise DatasetError(file, line, "image", f"{rec.image!r} is not an image of the ground-truth dataset")
+        for field, got, want in (("width", rec.width, gt.width), ("height", rec.height, gt.height)):
+            if got != want:
+                raise DatasetError(file, line, field, f"{got} but the ground truth's {rec.image} is {gt.width}x"
+                                   f"{gt.height}: boxes must be in the ground-truth image's pixels (rescale them)")
     return {r.image: r for r in records}
 
 
 def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, seed: int,
           max_easy_vehicles: int = 3) -> dict:
     root, gts = load_ground_truth(gt_root)
-    preds = load_predictions(pred_path, root, {r.image for r in gts})
     by_image = {r.image: r for r in gts}
+    preds = load_predictions(pred_path, root, by_image)
     subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed, max_easy_vehicles).items()}
     results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
     sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}

@@ -47,6 +47,17 @@ def test_unknown_image_is_an_error(data, tmp_path, capsys):
     assert "pred.jsonl:2" in err and "'image'" in err and "not an image of the ground-truth dataset" in err
 
 
+def test_predictions_at_another_resolution_are_an_error(data, tmp_path, capsys):
+    lines = (data / "labels.jsonl").read_text().splitlines()
+    obj = json.loads(lines[1])
+    obj["width"], obj["height"] = obj["width"] // 2, obj["height"] // 2
+    obj["boxes"] = [[v / 2 if k < 4 else v for k, v in enumerate(b)] for b in obj["boxes"]]
+    (tmp_path / "pred.jsonl").write_text(lines[0] + "\n" + json.dumps(obj) + "\n")
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl")]) == 2
+    err = capsys.readouterr().err
+    assert "pred.jsonl:2" in err and "'width'" in err and "boxes must be in the ground-truth image's pixels" in err
+
+
 @pytest.mark.parametrize("mutate, where", [
     (lambda o: "{not json", ":1: field '<json>'"),
     (lambda o: json.dumps({**o, "boxes": [[5, 5, 1, 9, 0.5, 0, 0]]}), ":1: field 'boxes[0]'"),
