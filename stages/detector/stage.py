@@ -80,7 +80,9 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
+    from stages.lightning_logs import route_lightning_logs
 
+    route_lightning_logs()
     out_dir = Path(out_dir)
     det = OmegaConf.to_container(cfg.detector, resolve=True)
     trainer_cfg = OmegaConf.to_container(cfg.trainer, resolve=True) if "trainer" in cfg else {}

@@ -20,6 +20,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from stages.checkpoints import best_and_latest
+from stages.lightning_logs import route_lightning_logs
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
 
@@ -70,6 +71,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
     from stages.relation.model import ModelConfig, count_parameters, size_mb
 
+    route_lightning_logs()
     started = time.perf_counter()
     out_dir = Path(out_dir)
     rel, tr = cfg.relation, cfg.trainer
