@@ -1,109 +1,13 @@
-"""Shared by the experiment tests: the real Hydra config composed with overrides, and subprocess runs of
-the pipeline on the smoke profile shrunk further (tiny data, a few training steps) into tmp dirs."""
+"""Fixtures of the experiment tests: the shared smoke pipeline run (helpers: ``pipeline_runs``)."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import socket
-import subprocess
-import sys
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from omegaconf import OmegaConf
-from sqlite_store import fresh_store, fresh_store_for_uri
-
-from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
-
-REPO = Path(__file__).resolve().parents[2]
-CONF = REPO / "conf"
-
-# The smoke profile, smaller still: enough images for every split and subset, one short epoch each.
-TINY = ["profile=smoke", "relation.train.limit_train_images=12",
-        "relation.train.limit_val_images=8", "detector.limit_train_batches=1", "detector.limit_val_batches=1",
-        "eval.gallery_images=2", "eval.fit_images=40", "export.register=false", "export.latency.runs=2",
-        "export.latency.images=4", "export.parity.detector_images=2"]
-
-
-def compose_config(overrides: list[str]) -> dict:
-    """The resolved root config (a plain dict) for ``overrides``, as the pipeline would see it."""
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-            cfg = compose("config", overrides=overrides)
-            return OmegaConf.to_container(cfg, resolve=True)
-    finally:
-        GlobalHydra.instance().clear()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def artifacts_beside_store(uri: str, artifacts: Path, experiment: str = "deepword") -> None:
-    """Create the experiment with its artifacts under ``artifacts``: a sqlite store's default artifact
-    root is ``./mlruns`` of the working directory, which would be the repository."""
-    from mlflow.tracking import MlflowClient
-
-    client = MlflowClient(tracking_uri=uri)
-    if client.get_experiment_by_name(experiment) is None:
-        client.create_experiment(experiment, artifact_location=artifacts.as_uri(),
-                                 tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
-
-
-@dataclass
-class Started:
-    """A pipeline subprocess and the files its stdout and stderr go to (files, not pipes: two pipelines
-    run side by side must not block on a full pipe while the test waits for the other)."""
-    proc: subprocess.Popen
-    stdout: Path
-    stderr: Path
-
-
-def start_pipeline(tmp: Path, overrides: list[str], uri: str, cache: Path | None = None) -> Started:
-    """``python -m pipeline`` started in a subprocess from the repo root, Hydra outputs, its output and
-    (by default) the cache under ``tmp``; ``finish_pipeline`` waits for it."""
-    tmp.mkdir(parents=True, exist_ok=True)
-    if uri.startswith("sqlite:"):
-        fresh_store_for_uri(uri)
-        artifacts_beside_store(uri, tmp / "artifacts")
-    args = [sys.executable, "-m", "pipeline", *overrides, f"pipeline.cache_dir={cache or tmp / 'cache'}",
-            f"tracking.uri={uri}", f"hydra.run.dir={tmp / 'run'}", f"hydra.sweep.dir={tmp / 'sweep'}"]
-    full_env = {**os.environ, "DEEPWORD_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    full_env.pop("MLFLOW_TRACKING_URI", None)
-    started = Started(None, tmp / "pipeline.stdout", tmp / "pipeline.stderr")
-    with started.stdout.open("w") as out, started.stderr.open("w") as err:
-        started.proc = subprocess.Popen(args, cwd=REPO, env=full_env, stdout=out, stderr=err, text=True)
-    return started
-
-
-def finish_pipeline(started: Started, timeout: float = 600) -> subprocess.CompletedProcess:
-    """Wait for a ``start_pipeline`` process; fail the test with its output tail unless it succeeded."""
-    proc = started.proc
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    stdout, stderr = started.stdout.read_text(), started.stderr.read_text()
-    if proc.returncode != 0:
-        pytest.fail(f"pipeline {proc.args[3:]} failed ({proc.returncode}, timeout {timeout} s):\n"
-                    f"{stdout[-3000:]}\n{stderr[-6000:]}")
-    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
-
-
-def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600,
-                 cache: Path | None = None) -> subprocess.CompletedProcess:
-    """``start_pipeline`` and wait for it."""
-    return finish_pipeline(start_pipeline(tmp, overrides, uri, cache), timeout)
-
+from pipeline_runs import TINY, finish_pipeline, start_pipeline
 
 # The shared smoke run (see ``smoke_store``), started by ``pytest_collection_modifyitems``.
 _smoke: dict = {}
@@ -144,49 +48,3 @@ def smoke_store(tmp_path_factory) -> dict:
         _start_smoke(tmp_path_factory.mktemp("smoke_run"))
     finish_pipeline(_smoke["job"])
     return {k: _smoke[k] for k in ("uri", "dir", "db")}
-
-
-class MlflowServer:
-    """A real ``mlflow server`` (or ``mlflow ui``) on 127.0.0.1 over a sqlite store, artifacts in ``tmp``;
-    started in its own process group so that stopping it also stops its web workers."""
-
-    def __init__(self, tmp: Path, command: str = "server", backend_uri: str | None = None):
-        self.port = free_port()
-        self.uri = f"http://127.0.0.1:{self.port}"
-        self.backend_uri = backend_uri or fresh_store(tmp / "server.db")
-        exe = Path(sys.executable).parent / "mlflow"
-        args = [str(exe), command, "--host", "127.0.0.1", "--port", str(self.port),
-                "--backend-store-uri", self.backend_uri, "--workers", "1"]
-        if command == "server":
-            args += ["--artifacts-destination", str(tmp / "artifacts")]
-        self.log = (tmp / f"mlflow_{command}.log").open("w")
-        self.proc = subprocess.Popen(args, cwd=tmp, stdout=self.log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
-
-    def wait_ready(self, timeout: float = 120) -> None:
-        import time
-        import urllib.request
-
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"mlflow exited with {self.proc.returncode}: {Path(self.log.name).read_text()[-3000:]}")
-            try:
-                with urllib.request.urlopen(self.uri + "/health", timeout=2) as r:
-                    if r.status == 200:
-                        return
-            except OSError:
-                time.sleep(0.5)
-        raise RuntimeError(f"mlflow not ready after {timeout} s: {Path(self.log.name).read_text()[-3000:]}")
-
-    def stop(self) -> None:
-        import signal
-
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-        self.log.close()

@@ -7,7 +7,7 @@ import csv
 import shutil
 
 import pytest
-from conftest import compose_config
+from pipeline_runs import compose_config
 from sqlite_store import fresh_store
 
 from pipeline.compare import PAPER_TABLE3, compare, main

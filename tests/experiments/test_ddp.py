@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import TINY, run_pipeline
+from pipeline_runs import TINY, run_pipeline
 
 pytestmark = pytest.mark.slow
 

@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from conftest import MlflowServer
+from pipeline_runs import MlflowServer
 
 pytestmark = pytest.mark.slow
 

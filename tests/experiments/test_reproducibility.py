@@ -7,7 +7,7 @@ import json
 import subprocess
 
 import pytest
-from conftest import REPO, TINY, finish_pipeline, start_pipeline
+from pipeline_runs import REPO, TINY, finish_pipeline, start_pipeline
 
 pytestmark = pytest.mark.slow
 

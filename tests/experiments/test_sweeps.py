@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import CONF, compose_config, run_pipeline
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
+from pipeline_runs import CONF, compose_config, run_pipeline
 
 from pipeline.compare import TABLE2, matches
 from pipeline.sweep import format_table, read_jobs, stage_totals, summarize

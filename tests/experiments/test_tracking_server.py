@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import REPO, MlflowServer, free_port, run_pipeline
+from pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
 
 pytestmark = pytest.mark.slow
 

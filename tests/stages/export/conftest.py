@@ -13,23 +13,11 @@ import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
+from tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
 
 W, H = 160, 120
-PRIORS_CFG = {"mode": "prior", "components": [1, 2], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
-              "plot_bins": 20}
-RELATION_MODEL = {"backbone": "conv_fc", "input_size": 16, "expansion": 1, "base_width": 8, "hidden": 16,
-                  "embed_dim": 8, "gat": True, "gat_hidden": 8, "gcn_layers": 2,
-                  "edge_geometry": True}  # the default network: GAT sees the pair geometry
-MAX_OBJECTS = 20
-DETECTOR = {"backbone": {"name": "tiny", "channels": [4, 8, 8, 8], "out_channels": 8, "head_conv": 8},
-            "input_width": 64, "input_height": 64, "max_detections": 10, "score_threshold": 0.1}
-EXPORT_CFG = {"min_box_px": 4, "register": True, "int8": {"op_types": ["MatMul", "Gemm"]},
-              "parity": {"max_abs_diff": 1e-4, "min_agreement": 99.9, "images": None, "detector_images": 3},
-              "latency": {"threads": 1, "runs": 3, "warmup": 1, "images": 4}}
-
-
 def car_row(rng: np.random.Generator, n_cars: int):
     boxes, relations, pairs = [], [], []
     for _ in range(n_cars):

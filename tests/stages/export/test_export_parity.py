@@ -4,7 +4,7 @@ detector, a deliberately diverging model that parity must catch, INT8, and the n
 import numpy as np
 import pytest
 import torch
-from conftest import DETECTOR, RELATION_MODEL
+from tiny_models import DETECTOR, RELATION_MODEL
 
 from stages.export.decode import decode_couples, decode_owners
 from stages.export.onnx_export import FoldedBackbone, export_detector, export_relation, relation_example

@@ -1,0 +1,15 @@
+"""Sizes of the small upstream models the export tests build (``conftest``) and check against. (A module of
+its own, not conftest.py: test modules import from it, and ``conftest`` is one module name for every test
+folder's conftest.)"""
+
+PRIORS_CFG = {"mode": "prior", "components": [1, 2], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
+              "plot_bins": 20}
+RELATION_MODEL = {"backbone": "conv_fc", "input_size": 16, "expansion": 1, "base_width": 8, "hidden": 16,
+                  "embed_dim": 8, "gat": True, "gat_hidden": 8, "gcn_layers": 2,
+                  "edge_geometry": True}  # the default network: GAT sees the pair geometry
+MAX_OBJECTS = 20
+DETECTOR = {"backbone": {"name": "tiny", "channels": [4, 8, 8, 8], "out_channels": 8, "head_conv": 8},
+            "input_width": 64, "input_height": 64, "max_detections": 10, "score_threshold": 0.1}
+EXPORT_CFG = {"min_box_px": 4, "register": True, "int8": {"op_types": ["MatMul", "Gemm"]},
+              "parity": {"max_abs_diff": 1e-4, "min_agreement": 99.9, "images": None, "detector_images": 3},
+              "latency": {"threads": 1, "runs": 3, "warmup": 1, "images": 4}}
