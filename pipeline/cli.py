@@ -21,9 +21,20 @@ CONF_NAME = "config"
 INFO_FLAGS = ("--help", "-h", "--cfg", "-c", "--info", "--hydra-help", "--shell-completion", "-sc")
 
 
+def spawnable_start_method() -> None:
+    """Each job of a parallel sweep runs in a joblib (loky) worker, whose default multiprocessing start
+    method is 'loky': a process spawned from the job restores its parent's default first and dies on
+    it, so a stage's process pool (the synthetic data renderer) never started. Reset it to 'spawn'."""
+    import multiprocessing as mp
+
+    if mp.get_start_method(allow_none=True) not in (None, *mp.get_all_start_methods()):
+        mp.set_start_method("spawn", force=True)
+
+
 def _app(cfg) -> None:
     from pipeline.runner import run_pipeline
 
+    spawnable_start_method()
     try:
         run_pipeline(cfg)
     except PipelineError as exc:

@@ -95,7 +95,7 @@ def test_sweep_summary_counts_computed_and_reused_entries(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_parallel_sweep_computes_shared_stages_once(tmp_path):
-    proc = run_pipeline(tmp_path, ["experiment=table1", "profile=smoke", "data.frames=4", "pipeline.until=priors"],
+    proc = run_pipeline(tmp_path, ["experiment=table1", "profile=smoke", "data.frames=4", "data.workers=2", "pipeline.until=priors"],
                         f"sqlite:///{tmp_path / 'mlflow.db'}")
     summary = json.loads((tmp_path / "sweep" / "sweep_summary.json").read_text())
     assert len(summary["jobs"]) == 2

@@ -128,3 +128,31 @@ def test_cli_runs_hydra_app_with_tracking_worker_and_rerun_is_up_to_date(toy):
 
     _, bad_stderr = bad.communicate(timeout=120)
     assert bad.returncode == 1 and "error: pipeline.until: unknown stage(s) ['zeta']" in bad_stderr
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def _pool_in_a_sweep_job(reset: bool) -> list[int]:
+    """What a sweep job does: (reset the start method as the CLI does, then) run a spawned process pool."""
+    import multiprocessing as mp
+
+    from pipeline.cli import spawnable_start_method
+
+    if reset:
+        spawnable_start_method()
+    with mp.get_context("spawn").Pool(1) as pool:
+        return pool.map_async(_square, [2, 3]).get(timeout=60)
+
+
+def test_a_sweep_job_in_a_loky_worker_can_start_a_process_pool():
+    """`make ablations` runs its jobs in joblib's loky workers (the parallel launcher); the data stage
+    renders with a spawned process pool there. Without the reset the pool's workers die at start."""
+    from joblib.externals.loky import get_reusable_executor
+
+    executor = get_reusable_executor(max_workers=1)
+    try:
+        assert executor.submit(_pool_in_a_sweep_job, True).result(timeout=120) == [4, 9]
+    finally:
+        executor.shutdown(wait=True, kill_workers=True)
