@@ -77,7 +77,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     rel, tr = cfg.relation, cfg.trainer
     if int(rel.train.epochs) < 1:
         raise ValueError(f"relation.train.epochs must be >= 1, got {rel.train.epochs}")
-    torch.set_num_threads(int(tr.threads))
+    torch.set_num_threads(int(rel.train.threads))
     L.seed_everything(int(cfg.seed), workers=True)
 
     ds = open_dataset(inputs["data"])

@@ -51,8 +51,11 @@ def test_ablation_sweeps_train_every_row_with_the_profiles_sweep_budget(profile)
         row = compose_config([*overrides, f"profile={profile}"])
         train = row["relation"]["train"]
         assert (train["epochs"], train["patience"]) == (budget["relation_epochs"], budget["relation_patience"])
-        assert {k: v for k, v in train.items() if k not in ("epochs", "patience")} == \
-            {k: v for k, v in pipeline_run["relation"]["train"].items() if k not in ("epochs", "patience")}
+        assert train["threads"] == 1  # two rows side by side on two cores, not four threads on two
+        assert row["trainer"] == pipeline_run["trainer"]  # so the shared detector is the pipeline's entry
+        assert {k: v for k, v in train.items() if k not in ("epochs", "patience", "threads")} == \
+            {k: v for k, v in pipeline_run["relation"]["train"].items() if k not in ("epochs", "patience", "threads")}
+    assert pipeline_run["relation"]["train"]["threads"] == pipeline_run["trainer"]["threads"]
     if profile == "quick":  # the point of the budget: the sweeps' rows train shorter than the pipeline's
         assert budget["relation_epochs"] < pipeline_run["relation"]["train"]["epochs"]
 
