@@ -93,29 +93,28 @@ def build_backbone(name: str, input_size: int, expansion: int, out_dim: int, bas
 
 # --- graph part ---------------------------------------------------------------------------------------
 
-EDGE_FEATURES = 6  # pair_geometry's width
+EDGE_FEATURES = 8  # pair_geometry's width
 
 
 def pair_geometry(coords: torch.Tensor) -> torch.Tensor:
-    """Relative box geometry of every node pair from the normalised boxes (B, N, 4) -> (B, N, N, 6):
-    centre offset of j in units of i's width/height, log width and height ratios, and the share of each
-    box's area inside the other (containment: a wheel sits in its vehicle's box). Elementwise ops only,
-    so it traces to ONNX for any N. Padded nodes (all-zero boxes) give finite values; their edges are
-    masked anyway."""
+    """Relative box geometry of every node pair from the normalised boxes (B, N, 4) -> (B, N, N, 8); for
+    [b, i, j], box j seen from box i: the offsets of j's left, top, right and bottom edges from i's in units
+    of i's width/height (a wheel's bottom is level with its vehicle box's bottom, near its left or right
+    end: the cues that tell a near vehicle from the one behind it), log width and height ratios, and the
+    share of each box's area inside the other (containment: a wheel sits in its vehicle's box). A few
+    broadcast tensor ops, so it traces to a short ONNX graph for any N. Padded nodes (all-zero boxes)
+    give finite values; their edges are masked anyway."""
     eps = 1e-6
-    x1, y1, x2, y2 = coords.unbind(-1)
-    w, h = (x2 - x1).clamp_min(eps), (y2 - y1).clamp_min(eps)
-    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
-    dx = (cx.unsqueeze(1) - cx.unsqueeze(2)) / w.unsqueeze(2)  # [b, i, j]: j relative to i
-    dy = (cy.unsqueeze(1) - cy.unsqueeze(2)) / h.unsqueeze(2)
-    log_w = torch.log(w.unsqueeze(1) / w.unsqueeze(2))
-    log_h = torch.log(h.unsqueeze(1) / h.unsqueeze(2))
-    iw = (torch.minimum(x2.unsqueeze(1), x2.unsqueeze(2)) - torch.maximum(x1.unsqueeze(1), x1.unsqueeze(2))).clamp_min(0)
-    ih = (torch.minimum(y2.unsqueeze(1), y2.unsqueeze(2)) - torch.maximum(y1.unsqueeze(1), y1.unsqueeze(2))).clamp_min(0)
-    inter = iw * ih
-    area = w * h
-    in_i, in_j = inter / area.unsqueeze(2), inter / area.unsqueeze(1)  # share of i's / j's area in the other
-    return torch.stack([dx.clamp(-10, 10), dy.clamp(-10, 10), log_w.clamp(-5, 5), log_h.clamp(-5, 5), in_i, in_j], -1)
+    top_left, bottom_right = coords[..., :2], coords[..., 2:]
+    wh = (bottom_right - top_left).clamp_min(eps)                       # (B, N, 2)
+    edges = (coords.unsqueeze(1) - coords.unsqueeze(2)) / torch.cat([wh, wh], -1).unsqueeze(2)
+    log_ratio = torch.log(wh.unsqueeze(1) / wh.unsqueeze(2))
+    overlap = (torch.minimum(bottom_right.unsqueeze(1), bottom_right.unsqueeze(2))
+               - torch.maximum(top_left.unsqueeze(1), top_left.unsqueeze(2))).clamp_min(0)
+    inter = overlap[..., 0] * overlap[..., 1]
+    area = wh[..., 0] * wh[..., 1]
+    shares = torch.stack([inter / area.unsqueeze(2), inter / area.unsqueeze(1)], -1)  # of i's / of j's area
+    return torch.cat([edges.clamp(-10, 10), log_ratio.clamp(-5, 5), shares], -1)
 
 
 class EdgeAttention(nn.Module):

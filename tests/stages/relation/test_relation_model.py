@@ -7,7 +7,7 @@ import torch
 
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
 from stages.relation.inputs import InputConfig, node_tensor
-from stages.relation.model import ModelConfig, RelationNet, count_parameters, pair_geometry
+from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
 
 torch.set_num_threads(1)
 
@@ -152,21 +152,28 @@ def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     assert np.isclose(m["pair_f1"], 200 / 3)
 
 
-def test_pair_geometry_gives_offsets_size_ratios_and_containment():
+def test_pair_geometry_gives_edge_offsets_size_ratios_and_containment():
     vehicle, wheel = [0.2, 0.2, 0.6, 0.6], [0.25, 0.5, 0.35, 0.6]  # the wheel in the vehicle's lower left
     g = pair_geometry(torch.tensor([[vehicle, wheel]]))[0]
-    assert g.shape == (2, 2, 6)
-    dx, dy, log_w, log_h, in_i, in_j = g[0, 1].tolist()           # the wheel seen from the vehicle
-    assert dx == pytest.approx(-0.25) and dy == pytest.approx(0.375)
+    assert g.shape == (2, 2, EDGE_FEATURES) == (2, 2, 8)
+    left, top, right, bottom, log_w, log_h, in_i, in_j = g[0, 1].tolist()   # the wheel seen from the vehicle
+    assert [left, top, right, bottom] == pytest.approx([0.125, 0.75, -0.625, 0.0])  # bottoms level
     assert log_w == pytest.approx(np.log(0.25)) and log_h == pytest.approx(np.log(0.25))
     assert in_i == pytest.approx(0.01 / 0.16) and in_j == pytest.approx(1.0)
-    assert torch.allclose(g[1, 0, 4:], g[0, 1, 4:].flip(0)) and torch.allclose(g[0, 0, :4], torch.zeros(4))
+    assert g[1, 0, :4].tolist() == pytest.approx([-0.5, -3.0, 2.5, 0.0])      # the vehicle seen from the wheel
+    assert torch.allclose(g[1, 0, 6:], g[0, 1, 6:].flip(0)) and torch.allclose(g[0, 0, :6], torch.zeros(6))
+
+
+def test_pair_geometry_is_finite_for_padding_and_clamped():
+    boxes = torch.tensor([[[0.0, 0.0, 0.0, 0.0], [0.1, 0.1, 0.9, 0.9], [0.5, 0.5, 0.5001, 0.5001]]])
+    g = pair_geometry(boxes)
+    assert torch.isfinite(g).all() and g[..., :4].abs().max() <= 10 and g[..., 4:6].abs().max() <= 5
 
 
 def test_edge_geometry_is_an_opt_in_addition_the_attention_reads():
     assert _net().attention.fc1.in_features == 2 * 32                     # the paper's Net(x_i, x_j)
     net = _net(edge_geometry=True)
-    assert net.attention.fc1.in_features == 2 * 32 + 6
+    assert net.attention.fc1.in_features == 2 * 32 + EDGE_FEATURES
     x, adj, _, _ = _inputs(12)
     h = net.embed(x)
     moved = x[:, :, 3:, 0, 0].clone()
