@@ -134,14 +134,13 @@ def _square(x: int) -> int:
     return x * x
 
 
-def _pool_in_a_sweep_job(reset: bool) -> list[int]:
-    """What a sweep job does: (reset the start method as the CLI does, then) run a spawned process pool."""
+def _pool_in_a_sweep_job() -> list[int]:
+    """What a sweep job does: reset the start method as the CLI does, then run a spawned process pool."""
     import multiprocessing as mp
 
     from pipeline.cli import spawnable_start_method
 
-    if reset:
-        spawnable_start_method()
+    spawnable_start_method()
     with mp.get_context("spawn").Pool(1) as pool:
         return pool.map_async(_square, [2, 3]).get(timeout=60)
 
@@ -153,6 +152,6 @@ def test_a_sweep_job_in_a_loky_worker_can_start_a_process_pool():
 
     executor = get_reusable_executor(max_workers=1)
     try:
-        assert executor.submit(_pool_in_a_sweep_job, True).result(timeout=120) == [4, 9]
+        assert executor.submit(_pool_in_a_sweep_job).result(timeout=120) == [4, 9]
     finally:
         executor.shutdown(wait=True, kill_workers=True)
