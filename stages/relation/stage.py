@@ -78,7 +78,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if int(rel.train.epochs) < 1:
         raise ValueError(f"relation.train.epochs must be >= 1, got {rel.train.epochs}")
     torch.set_num_threads(int(rel.train.threads))
-    L.seed_everything(int(cfg.seed), workers=True)
+    L.seed_everything(int(rel.train.seed), workers=True)
 
     ds = open_dataset(inputs["data"])
     priors = load_priors(inputs["priors"])
@@ -128,7 +128,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     has_roles = bool((train.role >= 0).any())
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain["decode"], "has_roles": has_roles,
-        "seed": int(cfg.seed), "best_epoch": int(best.get("epoch", -1)), "metrics": metrics,
+        "seed": int(rel.train.seed), "best_epoch": int(best.get("epoch", -1)), "metrics": metrics,
         "curves": history.rows}, indent=1))
     plot_curves(history.rows, out_dir / "artifacts" / "relation_curves.png")
     shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry

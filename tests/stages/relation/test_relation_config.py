@@ -89,3 +89,10 @@ def test_every_backbone_composes_and_builds(backbone, size):
     with torch.no_grad():
         owner, _, _ = net(x, adj, torch.zeros(1, 3, 3))
     assert owner.shape == (1, 3, 3) and count_parameters(net) > 0 and size_mb(net) > 0
+
+
+def test_training_seed_follows_the_root_seed_and_overrides_alone():
+    assert _compose().relation.train.seed == 42
+    assert _compose("seed=7").relation.train.seed == 7
+    base, moved = _leaves(_compose()), _leaves(_compose("relation.train.seed=43"))
+    assert {k for k in base if base[k] != moved[k]} == {"relation.train.seed"}  # the data keep seed 42

@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import asdict
+from pathlib import Path
 
 import lightning as L
 import numpy as np
@@ -126,24 +127,34 @@ def _write_dataset(root, n_train=16, n_val=6):
     return recs
 
 
-@pytest.mark.slow
-def test_stage_trains_saves_and_predicts(tmp_path):
-    from stages.relation.predict import RelationPredictor
-    from stages.relation.stage import run
-
-    recs = _write_dataset(tmp_path)
+def _stage_cfg(**train):
+    """A small relation stage config on the real conf/relation/default.yaml (root seed 0)."""
     rel = OmegaConf.load("conf/relation/default.yaml")
     del rel["defaults"]
     rel.backbone = OmegaConf.load("conf/relation/backbone/conv_fc.yaml")
     rel.max_objects = 16
     rel.model.hidden, rel.model.embed_dim = 32, 16
     rel.train.epochs, rel.train.batch_size = 2, 8
+    rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
                                 "precision": "32-true", "threads": 1})
-    cfg = OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0})
-    out = tmp_path / "relation"
+    return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0})
+
+
+def _run_stage(root, out_name: str, **train) -> tuple[dict, Path]:
+    from stages.relation.stage import run
+
+    out = root / out_name
     out.mkdir()
-    metrics = run(cfg, {"data": tmp_path / "data", "priors": tmp_path / "priors"}, out)
+    return run(_stage_cfg(**train), {"data": root / "data", "priors": root / "priors"}, out), out
+
+
+@pytest.mark.slow
+def test_stage_trains_saves_and_predicts(tmp_path):
+    from stages.relation.predict import RelationPredictor
+
+    recs = _write_dataset(tmp_path)
+    metrics, out = _run_stage(tmp_path, "relation")
 
     assert {"relation.val.wheel_acc", "relation.val.image_acc", "relation.params", "relation.size_mb"} <= set(metrics)
     assert 0 <= metrics["relation.val.wheel_acc"] <= 100 and metrics["relation.params"] > 1000
@@ -163,3 +174,16 @@ def test_stage_trains_saves_and_predicts(tmp_path):
     # the predictor decides exactly what the training-time decoder decided (same weights, same graph)
     many = predictor.predict_many(recs[16:], rd.render, batch_size=4)
     assert [r.relations for r in many][-1] == pred.relations
+
+
+@pytest.mark.slow
+def test_training_seed_changes_the_weights_not_the_data(tmp_path):
+    """relation.train.seed (default: the root seed) seeds initialisation, shuffling and flips only: on one
+    dataset, another training seed trains other weights and relation.json records it."""
+    _write_dataset(tmp_path)
+    _, first = _run_stage(tmp_path, "seed_0", epochs=1)
+    _, second = _run_stage(tmp_path, "seed_1", epochs=1, seed=1)
+    weights = [torch.load(d / "relation.pt", weights_only=True) for d in (first, second)]
+    assert weights[0].keys() == weights[1].keys()
+    assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+    assert [json.loads((d / "relation.json").read_text())["seed"] for d in (first, second)] == [0, 1]
