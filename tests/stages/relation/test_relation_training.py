@@ -177,9 +177,9 @@ def test_stage_trains_saves_and_predicts(tmp_path):
 
 
 @pytest.mark.slow
-def test_training_seed_changes_the_weights_not_the_data(tmp_path):
-    """relation.train.seed (default: the root seed) seeds initialisation, shuffling and flips only: on one
-    dataset, another training seed trains other weights and relation.json records it."""
+def test_training_seed_changes_the_weights(tmp_path):
+    """relation.train.seed (default: the root seed) is the seed the stage trains with: at one root seed,
+    another training seed trains other weights, and relation.json records it."""
     _write_dataset(tmp_path)
     _, first = _run_stage(tmp_path, "seed_0", epochs=1)
     _, second = _run_stage(tmp_path, "seed_1", epochs=1, seed=1)
