@@ -42,6 +42,11 @@ def test_table3_is_one_job_of_the_default_configuration():
     assert compose_config(["experiment=table3"])["relation"] == compose_config([])["relation"]
 
 
+def _without_sweep_fields(train: dict) -> dict:
+    """relation.train less what the ablation sweeps set for their rows (budget and threads)."""
+    return {k: v for k, v in train.items() if k not in ("epochs", "patience", "threads")}
+
+
 @pytest.mark.parametrize("profile", ["smoke", "quick", "full"])
 def test_ablation_sweeps_train_every_row_with_the_profiles_sweep_budget(profile):
     pipeline_run = compose_config([f"profile={profile}"])
@@ -53,8 +58,7 @@ def test_ablation_sweeps_train_every_row_with_the_profiles_sweep_budget(profile)
         assert (train["epochs"], train["patience"]) == (budget["relation_epochs"], budget["relation_patience"])
         assert train["threads"] == 1  # two rows side by side on two cores, not four threads on two
         assert row["trainer"] == pipeline_run["trainer"]  # so the shared detector is the pipeline's entry
-        assert {k: v for k, v in train.items() if k not in ("epochs", "patience", "threads")} == \
-            {k: v for k, v in pipeline_run["relation"]["train"].items() if k not in ("epochs", "patience", "threads")}
+        assert _without_sweep_fields(train) == _without_sweep_fields(pipeline_run["relation"]["train"])
     assert pipeline_run["relation"]["train"]["threads"] == pipeline_run["trainer"]["threads"]
     if profile == "quick":  # the point of the budget: the sweeps' rows train shorter than the pipeline's
         assert budget["relation_epochs"] < pipeline_run["relation"]["train"]["epochs"]
