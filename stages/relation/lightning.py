@@ -1,5 +1,5 @@
 """Lightning wrappers of the relation network: dataset and data module over cached split inputs, and the
-training module (weighted L2 loss, decoding, metrics). The network itself is ``model.RelationNet``."""
+training module (weighted L2 loss and owner ranking, decoding, metrics). The network itself is ``model.RelationNet``."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from torchmetrics import Metric
 from stages.relation.decode import (
     decode_couples,
     decode_owners,
+    inside_share,
     metrics_from_counts,
     relation_counts,
     type_masks,
@@ -121,20 +122,44 @@ def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, 
     return pos_weight * pos_term + neg_weight * neg_term
 
 
+RANK_TEMPERATURE = 0.1  # cosines span [-1, 1]: /0.1 lets the softmax approach one-hot
+
+
+def owner_ranking(scores: torch.Tensor, target: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
+    """Mean cross-entropy, over wheels whose owner is among their allowed vehicles, of a softmax of the
+    wheel's ownership scores over those vehicles. The one-owner decode keeps each wheel's best vehicle,
+    a ranking the L2 loss trains only indirectly (it pulls every score to 0 or 1 on its own): a wheel
+    inside two vehicle boxes is scored right by L2 on average while its two vehicles swap places."""
+    logits = torch.where(allowed, scores / RANK_TEMPERATURE, torch.full_like(scores, -1e4))
+    positive = target.bool() & allowed
+    has_owner = positive.any(dim=-1)
+    log_p = torch.log_softmax(logits, dim=-1)
+    nll = -(log_p * positive.to(scores.dtype)).sum(dim=-1)
+    return (nll * has_owner.to(scores.dtype)).sum() / has_owner.sum().clamp_min(1)
+
+
 def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
-                  role_weight: float) -> dict[str, torch.Tensor]:
-    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE."""
+                  role_weight: float, rank_weight: float = 0.0, min_containment: float = 0.0) -> dict[str, torch.Tensor]:
+    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE,
+    plus (``rank_weight`` > 0) the owner ranking over the vehicles the decode may choose (``min_containment``)."""
     owner_scores, couple_scores, front = outputs
     wv, ww = type_masks(batch["classes"])
     cand = batch["cand"].bool()
     owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
+    rank = owner.new_zeros(())
+    if rank_weight > 0:
+        allowed = wv & cand
+        if min_containment > 0:
+            allowed = allowed & (inside_share(batch["coords"]) >= min_containment)
+        rank = owner_ranking(owner_scores, batch["owner"], allowed)
     couple = weighted_l2(couple_scores, batch["couple"], ww & cand, pos_weight, neg_weight)
     known = ((batch["role"] >= 0) & batch["valid"].bool()).to(front.dtype)
     target = batch["role"].clamp_min(0).to(front.dtype)
     p = front.clamp(1e-6, 1 - 1e-6)
     bce = -(target * torch.log(p) + (1 - target) * torch.log(1 - p))  # lets a NaN through to the loss check
     role = (bce * known).sum() / known.sum().clamp_min(1.0)
-    return {"loss": owner + couple + role_weight * role, "owner": owner, "couple": couple, "role": role}
+    return {"loss": owner + couple + role_weight * role + rank_weight * rank, "owner": owner, "couple": couple,
+            "role": role, "rank": rank}
 
 
 class RelationModule(L.LightningModule):
@@ -160,7 +185,8 @@ class RelationModule(L.LightningModule):
 
     def _loss(self, outputs, batch):
         lc = self.hparams.loss
-        return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"])
+        return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"],
+                             lc.get("rank_weight", 0.0), self.hparams.decode.get("min_containment", 0.0))
 
     def training_step(self, batch, batch_idx):
         losses = self._loss(self(batch), batch)

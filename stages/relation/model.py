@@ -4,6 +4,8 @@
     --residual graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings
     --> cosine scores: ownership (wheel-vehicle pairs) and couples (wheel-wheel pairs); a role head
     gives each wheel's probability of being a front wheel (orders predicted couples rear -> front).
+    Optionally (``geometry_gate``, an addition) a learned gate of the pair's relative box geometry
+    multiplies the ownership cosines.
 
 Two embedding heads, because one cosine space cannot hold both relations: if two wheels both had
 cosine 1 with their vehicle they would have cosine 1 with each other, yet two wheels of one vehicle on
@@ -134,17 +136,34 @@ class EdgeAttention(nn.Module):
         self.dim = dim
         self.edge_geometry = edge_geometry
 
-    def forward(self, h: torch.Tensor, neighbours: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, h: torch.Tensor, neighbours: torch.Tensor, geometry: torch.Tensor | None = None) -> torch.Tensor:
         w_i, w_j = self.fc1.weight[:, : self.dim], self.fc1.weight[:, self.dim : 2 * self.dim]
         pair = F.linear(h, w_i, self.fc1.bias).unsqueeze(2) + F.linear(h, w_j).unsqueeze(1)  # (B, N, N, hidden)
         if self.edge_geometry:
-            if coords is None:
-                raise ValueError("EdgeAttention(edge_geometry=True) needs the normalised boxes (coords)")
-            pair = pair + F.linear(pair_geometry(coords), self.fc1.weight[:, 2 * self.dim :])
+            if geometry is None:
+                raise ValueError("EdgeAttention(edge_geometry=True) needs the pair geometry of the boxes (coords)")
+            pair = pair + F.linear(geometry, self.fc1.weight[:, 2 * self.dim :])
         logits = self.fc2(F.relu(pair)).squeeze(-1)
         logits = torch.where(neighbours, logits, torch.full_like(logits, _MASKED_LOGIT))
         # a node without neighbours (padding) gets a uniform row from softmax: zero it
         return torch.softmax(logits, dim=-1) * neighbours.to(logits.dtype)
+
+
+class GeometryGate(nn.Module):
+    """An addition to the paper: gate_ij = sigmoid(f(g_ij) + f(g_ji)), f a small MLP of the pair's
+    relative box geometry (``pair_geometry``); it multiplies the ownership cosines. The cosine of two
+    embeddings says how alike a wheel and a vehicle look after message passing; it cannot compare the two
+    boxes directly, and a small wheel inside two overlapping vehicle boxes looks alike to both: whose box
+    bottom it is level with settles it. Symmetric, like the cosines, and in (0, 1), so scores stay in
+    [-1, 1]."""
+
+    def __init__(self, hidden: int = 32):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(EDGE_FEATURES, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+
+    def forward(self, geometry: torch.Tensor) -> torch.Tensor:
+        f = self.net(geometry).squeeze(-1)
+        return torch.sigmoid(f + f.transpose(1, 2))
 
 
 @dataclass(frozen=True)
@@ -159,6 +178,7 @@ class ModelConfig:
     gat_hidden: int = 64
     gcn_layers: int = 2
     edge_geometry: bool = False  # addition to the paper: GAT sees the pair's relative box geometry
+    geometry_gate: bool = False  # addition to the paper: a learned geometry gate on the ownership cosines
 
     @classmethod
     def from_cfg(cls, rel) -> ModelConfig:
@@ -166,7 +186,7 @@ class ModelConfig:
         return cls(backbone=str(b.name), input_size=int(b.input_size), expansion=int(b.expansion),
                    base_width=int(b.get("base_width", 64)), hidden=int(m.hidden), embed_dim=int(m.embed_dim),
                    gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers),
-                   edge_geometry=bool(m.edge_geometry))
+                   edge_geometry=bool(m.edge_geometry), geometry_gate=bool(m.geometry_gate))
 
 
 class RelationNet(nn.Module):
@@ -183,6 +203,7 @@ class RelationNet(nn.Module):
         self.owner_head = nn.Linear(cfg.hidden, cfg.embed_dim)
         self.couple_head = nn.Linear(cfg.hidden, cfg.embed_dim)
         self.role_head = nn.Linear(cfg.hidden, 1)
+        self.gate = GeometryGate() if cfg.geometry_gate else None
 
     def embed(self, x: torch.Tensor) -> torch.Tensor:
         """Backbone over every node: (B, N, 7, S, S) -> (B, N, hidden)."""
@@ -190,24 +211,30 @@ class RelationNet(nn.Module):
         return self.backbone(x.flatten(0, 1)).reshape(b, n, self.cfg.hidden)
 
     def edge_weights(self, h: torch.Tensor, adj: torch.Tensor,
-                     coords: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                     geometry: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """W' = adj * Scale (Eq. 5; Scale = 1 without GAT), row-normalised for the graph convolution so
         that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale).
-        ``coords`` (B, N, 4) normalised boxes: needed only with ``edge_geometry``."""
+        ``geometry`` (B, N, N, 8) = ``pair_geometry(coords)``: needed only with ``edge_geometry``."""
         neighbours = adj > 0
-        scale = self.attention(h, neighbours, coords) if self.attention is not None else neighbours.to(adj.dtype)
+        scale = self.attention(h, neighbours, geometry) if self.attention is not None else neighbours.to(adj.dtype)
         weights = adj * scale
         return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12), scale
 
     def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
         """Graph part on backbone features h (B, N, hidden) and normalised boxes coords (B, N, 4)."""
-        weights, _ = self.edge_weights(h, adj, coords)
+        needs_geometry = self.gate is not None or (self.attention is not None and self.cfg.edge_geometry)
+        if needs_geometry and coords is None:
+            raise ValueError("RelationNet: edge_geometry and geometry_gate need the normalised boxes (coords)")
+        geometry = pair_geometry(coords) if needs_geometry else None  # computed once for both users
+        weights, _ = self.edge_weights(h, adj, geometry)
         for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
             h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
         couple = F.normalize(self.couple_head(h), dim=-1)
         cand = cand.to(h.dtype)
         owner_scores = (owner @ owner.transpose(1, 2)) * cand
+        if self.gate is not None:
+            owner_scores = owner_scores * self.gate(geometry)
         couple_scores = (couple @ couple.transpose(1, 2)) * cand
         front = torch.sigmoid(self.role_head(h).squeeze(-1))
         return owner_scores, couple_scores, front

@@ -31,6 +31,7 @@ def test_unknown_backbone_fails_at_config_composition(tmp_path, tiny, group):
     ("relation.train.epochs=-1", "relation.train.epochs = -1: must be >= 1"),
     ("detector.epochs=0", "detector.epochs = 0: must be >= 1"),
     ("relation.max_objects=0", "relation.max_objects = 0: must be >= 1"),
+    ("relation.loss.rank_weight=-0.5", "relation.loss.rank_weight = -0.5: must be >= 0"),
     ("eval.match_iou=1.5", "eval.match_iou = 1.5: must be <= 1"),
 ])
 def test_bad_config_value_fails_before_any_stage_runs(tmp_path, tiny, tracking_uri, override, words):

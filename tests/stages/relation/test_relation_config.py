@@ -25,6 +25,8 @@ ABLATIONS = {
     "no_edge_geometry": {"relation.model.edge_geometry": False},
     "no_prior": {"relation.adjacency": "uniform"},
     "no_containment": {"relation.decode.min_containment": 0.0},
+    "no_geometry_gate": {"relation.model.geometry_gate": False},
+    "no_rank": {"relation.loss.rank_weight": 0.0},
 }
 
 

@@ -45,9 +45,12 @@ def test_resnet18_at_full_width_is_resnet18_sized():
     assert 11.0e6 < count_parameters(net.backbone) < 11.5e6  # torchvision's resnet18 has 11.7M with its 1000-way fc
 
 
-@pytest.mark.parametrize("edge_geometry", [False, True])
-def test_padding_never_changes_real_outputs(edge_geometry):
-    net = _net(edge_geometry=edge_geometry)
+GEOMETRY_OPTIONS = [{}, {"edge_geometry": True}, {"edge_geometry": True, "geometry_gate": True}]
+
+
+@pytest.mark.parametrize("geometry", GEOMETRY_OPTIONS)
+def test_padding_never_changes_real_outputs(geometry):
+    net = _net(**geometry)
     x, adj, cand, split = _inputs(12)
     n_big = 20
     pad = n_big - 12
@@ -62,9 +65,9 @@ def test_padding_never_changes_real_outputs(edge_geometry):
         assert torch.allclose(small[2][i, :k], big[2][i, :k], atol=1e-6)
 
 
-@pytest.mark.parametrize("edge_geometry", [False, True])
-def test_permuting_objects_permutes_outputs(edge_geometry):
-    net = _net(edge_geometry=edge_geometry)
+@pytest.mark.parametrize("geometry", GEOMETRY_OPTIONS)
+def test_permuting_objects_permutes_outputs(geometry):
+    net = _net(**geometry)
     x, adj, cand, split = _inputs(12, n_images=1)
     k = int(split.valid[0].sum())
     perm = torch.cat([torch.randperm(k, generator=torch.Generator().manual_seed(3)), torch.arange(k, 12)])
@@ -179,8 +182,30 @@ def test_edge_geometry_is_an_opt_in_addition_the_attention_reads():
     moved = x[:, :, 3:, 0, 0].clone()
     moved[:, 0] += 0.1                                                      # the same node features, box moved
     with torch.no_grad():
-        _, scale = net.edge_weights(h, adj, x[:, :, 3:, 0, 0])
-        _, scale_moved = net.edge_weights(h, adj, moved)
+        _, scale = net.edge_weights(h, adj, pair_geometry(x[:, :, 3:, 0, 0]))
+        _, scale_moved = net.edge_weights(h, adj, pair_geometry(moved))
     assert not torch.allclose(scale, scale_moved)
-    with pytest.raises(ValueError, match="coords"):
+    with pytest.raises(ValueError, match="pair geometry"):
         net.edge_weights(h, adj)
+
+
+def test_geometry_gate_is_an_opt_in_symmetric_gate_on_the_ownership_cosines():
+    assert _net().gate is None and _net(edge_geometry=True).gate is None
+    net = _net(geometry_gate=True)
+    x, adj, cand, _ = _inputs(12)
+    coords = x[:, :, 3:, 0, 0]
+    gate = net.gate(pair_geometry(coords))
+    assert torch.all((gate > 0) & (gate < 1)) and torch.allclose(gate, gate.transpose(1, 2))
+    h = net.embed(x)
+    moved = coords.clone()
+    moved[:, 0] += 0.1                                                      # the same node features, box moved
+    with torch.no_grad():
+        owner, couple, _ = net.relate(h, adj, cand, coords)
+        owner_moved, couple_moved, _ = net.relate(h, adj, cand, moved)
+        plain = _net()
+        plain.load_state_dict({k: v for k, v in net.state_dict().items() if not k.startswith("gate.")})
+        owner_plain = plain.relate(h, adj, cand, coords)[0]
+    assert not torch.allclose(owner, owner_moved) and torch.equal(couple, couple_moved)  # gates ownership only
+    assert torch.allclose(owner, owner_plain * gate, atol=1e-6)            # cosine x gate
+    with pytest.raises(ValueError, match="coords"):
+        net.relate(h, adj, cand)

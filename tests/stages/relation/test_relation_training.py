@@ -1,6 +1,7 @@
 """Training: overfitting one batch, Lightning fast_dev_run, NaN loss, and the stage end to end."""
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from stages.relation.lightning import (
     RelationDataModule,
     RelationModule,
     collate_graphs,
+    owner_ranking,
     score_split,
 )
 from stages.relation.model import ModelConfig
@@ -50,6 +52,25 @@ def test_overfits_one_batch_to_full_wheel_accuracy():
         opt.step()
     metrics = score_split(module, split, 8)
     assert start < 90 and metrics["wheel_acc"] == 100.0 and metrics["couple_f1"] > 95
+
+
+def test_owner_ranking_trains_each_wheels_order_among_its_allowed_vehicles():
+    # nodes 0, 1 vehicles, 2, 3 wheels; wheel 2 belongs to vehicle 0, wheel 3 to nobody
+    target = torch.zeros(1, 4, 4)
+    target[0, 2, 0] = target[0, 0, 2] = 1
+    allowed = torch.zeros(1, 4, 4, dtype=torch.bool)
+    allowed[0, 2:, :2] = True
+
+    def loss(s20: float, s21: float, s30: float = 0.0) -> float:
+        scores = torch.zeros(1, 4, 4)
+        scores[0, 2, 0], scores[0, 2, 1], scores[0, 3, 0] = s20, s21, s30
+        return owner_ranking(scores, target, allowed).item()
+
+    assert loss(0.9, 0.6) < loss(0.6, 0.9)                                  # the owner ahead of the other
+    assert loss(0.9, 0.6) == pytest.approx(math.log(1 + math.exp(-3)), rel=1e-5)  # softmax of score / 0.1
+    assert loss(0.9, 0.6, s30=0.99) == loss(0.9, 0.6)                       # an ownerless wheel adds nothing
+    allowed[0, 2, 1] = False                                                # the decode may not choose it
+    assert loss(0.6, 0.9) == pytest.approx(0.0, abs=1e-6)
 
 
 def _trainer(**kw) -> L.Trainer:
