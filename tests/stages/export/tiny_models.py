@@ -6,7 +6,7 @@ PRIORS_CFG = {"mode": "prior", "components": [1, 2], "n_init": 1, "reg_covar": 1
               "plot_bins": 20}
 RELATION_MODEL = {"backbone": "conv_fc", "input_size": 16, "expansion": 1, "base_width": 8, "hidden": 16,
                   "embed_dim": 8, "gat": True, "gat_hidden": 8, "gcn_layers": 2,
-                  "edge_geometry": True}  # the default network: GAT sees the pair geometry
+                  "edge_geometry": True, "geometry_gate": True}  # the default network: both geometry additions
 MAX_OBJECTS = 20
 DETECTOR = {"backbone": {"name": "tiny", "channels": [4, 8, 8, 8], "out_channels": 8, "head_conv": 8},
             "input_width": 64, "input_height": 64, "max_detections": 10, "score_threshold": 0.1}

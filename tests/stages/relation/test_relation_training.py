@@ -29,18 +29,27 @@ LOSS = {"pos_weight": 1.0, "neg_weight": 1.0, "role_weight": 0.1}
 DECODE = {"threshold": 0.5, "one_owner": True}
 
 
-def _module(lr: float = 3e-3) -> RelationModule:
+# the additions to the paper that conf/relation/default.yaml switches on
+SHIPPED = ({"edge_geometry": True, "geometry_gate": True}, {"rank_weight": 0.5}, {"min_containment": 0.8})
+
+
+def _module(lr: float = 3e-3, additions: bool = False) -> RelationModule:
     torch.manual_seed(0)
-    return RelationModule(model=asdict(TINY), loss=LOSS, decode=DECODE, optim={"lr": lr, "weight_decay": 0.0})
+    model, loss, decode = asdict(TINY), dict(LOSS), dict(DECODE)
+    if additions:
+        for part, extra in zip((model, loss, decode), SHIPPED, strict=True):
+            part.update(extra)
+    return RelationModule(model=model, loss=loss, decode=decode, optim={"lr": lr, "weight_decay": 0.0})
 
 
 def _split(n: int, seed: int = 0):
     return rd.split(rd.records(n, seed=seed), InputConfig(input_size=28, max_objects=16))
 
 
-def test_overfits_one_batch_to_full_wheel_accuracy():
+@pytest.mark.parametrize("additions", [False, True], ids=["paper", "shipped"])
+def test_overfits_one_batch_to_full_wheel_accuracy(additions):
     split = _split(8)
-    module = _module()
+    module = _module(additions=additions)
     batch = collate_graphs([GraphDataset(split)[i] for i in range(len(split))])
     opt = torch.optim.Adam(module.parameters(), lr=3e-3)
     start = score_split(module, split, 8)["wheel_acc"]
