@@ -48,7 +48,7 @@ def plot_curves(rows: list[dict[str, float]], path: Path) -> Path:
             ax_loss.plot(*zip(*pts, strict=True), marker="o", ms=3, label=label)
     ax_loss.set_yscale("log")
     ax_loss.set_xlabel("epoch")
-    ax_loss.set_title("weighted L2 loss")
+    ax_loss.set_title("loss (weighted L2 + role + owner ranking)")
     ax_loss.legend()
     pts = [(r["epoch"], r["val/wheel_acc"]) for r in rows if "val/wheel_acc" in r]
     if pts:
