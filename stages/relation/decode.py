@@ -30,19 +30,26 @@ def inside_share(coords: torch.Tensor) -> torch.Tensor:
     return iw * ih / ((x2 - x1) * (y2 - y1)).clamp_min(1e-12).unsqueeze(2)
 
 
-def decode_owners(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tensor, threshold: float,
-                  one_owner: bool, coords: torch.Tensor | None = None, min_containment: float = 0.0) -> torch.Tensor:
-    """Owner decisions: every candidate wheel-vehicle pair above threshold, or (one_owner) each wheel's
-    best-scoring vehicle if that score is above threshold. With ``min_containment`` > 0 a wheel can only
-    go to a vehicle whose box holds at least that share of the wheel box (``coords``, (B, N, 4)): a
-    vehicle's box covers its visible wheels, so a wheel sticking out of it belongs to another vehicle,
-    often one too occluded to be annotated."""
+def allowed_owners(classes: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None,
+                   min_containment: float = 0.0) -> torch.Tensor:
+    """(B, N, N) bool: the candidate wheel-vehicle pairs (wheel rows) a wheel may be given to. With
+    ``min_containment`` > 0 only vehicles whose box holds at least that share of the wheel box (``coords``,
+    (B, N, 4)): a vehicle's box covers its visible wheels, so a wheel sticking out of it belongs to another
+    vehicle, often one too occluded to be annotated."""
     wv, _ = type_masks(classes)
     allowed = wv & cand.bool()
     if min_containment > 0:
         if coords is None:
-            raise ValueError("decode_owners: min_containment needs the boxes (coords)")
+            raise ValueError("relation decoding: min_containment needs the boxes (coords)")
         allowed = allowed & (inside_share(coords) >= min_containment)
+    return allowed
+
+
+def decode_owners(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tensor, threshold: float,
+                  one_owner: bool, coords: torch.Tensor | None = None, min_containment: float = 0.0) -> torch.Tensor:
+    """Owner decisions: every allowed wheel-vehicle pair (``allowed_owners``) above threshold, or
+    (one_owner) each wheel's best-scoring allowed vehicle if that score is above threshold."""
+    allowed = allowed_owners(classes, cand, coords, min_containment)
     masked = torch.where(allowed, scores, torch.full_like(scores, -2.0))  # cosines are >= -1
     above = masked > threshold
     if not one_owner:

@@ -9,9 +9,9 @@ from torch.utils.data import DataLoader, Dataset
 from torchmetrics import Metric
 
 from stages.relation.decode import (
+    allowed_owners,
     decode_couples,
     decode_owners,
-    inside_share,
     metrics_from_counts,
     relation_counts,
     type_masks,
@@ -148,9 +148,7 @@ def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, ne
     owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
     rank = owner.new_zeros(())
     if rank_weight > 0:
-        allowed = wv & cand
-        if min_containment > 0:
-            allowed = allowed & (inside_share(batch["coords"]) >= min_containment)
+        allowed = allowed_owners(batch["classes"], cand, batch["coords"], min_containment)
         rank = owner_ranking(owner_scores, batch["owner"], allowed)
     couple = weighted_l2(couple_scores, batch["couple"], ww & cand, pos_weight, neg_weight)
     known = ((batch["role"] >= 0) & batch["valid"].bool()).to(front.dtype)
