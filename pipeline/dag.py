@@ -1,4 +1,4 @@
-"""The stage graph declared under ``cfg.pipeline.stages``: parsing, validation and ordering.
+"""The stage graph declared under ``cfg.pipeline.stages``: parsing, validation, ordering and selection.
 
 Every problem (unknown input, cycle, unknown config key, malformed ``run``) is reported before any
 stage runs, naming the stage and the field.
@@ -13,7 +13,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "config", "watch", "checks"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks"}
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ class StageSpec:
     config: tuple[str, ...]
     watch: tuple[str, ...]
     checks: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (config key, rules): see pipeline.checks
+    optional: tuple[str, ...] = ()  # inputs the stage can run without (when pipeline.skip leaves them out)
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -50,6 +51,11 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         raise PipelineError(f"pipeline.stages.{name}.run: expected 'package.module:function', got {run!r}")
     module, function = run.split(":")
     config = _str_list(name, "config", node.get("config"))
+    inputs = _str_list(name, "inputs", node.get("inputs"))
+    optional = _str_list(name, "optional", node.get("optional"))
+    not_inputs = [o for o in optional if o not in inputs]
+    if not_inputs:
+        raise PipelineError(f"pipeline.stages.{name}.optional: {not_inputs} not among its inputs {list(inputs)}")
     missing = [k for k in config if k not in cfg]
     if missing:
         raise PipelineError(
@@ -60,10 +66,11 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         name=name,
         module=module,
         function=function,
-        inputs=_str_list(name, "inputs", node.get("inputs")),
+        inputs=inputs,
         config=config,
         watch=_str_list(name, "watch", node.get("watch")),
         checks=parse_checks(name, node.get("checks")),
+        optional=optional,
     )
 
 
@@ -121,10 +128,24 @@ def check_stage_names(specs: dict[str, StageSpec], names: list[str], field: str)
         raise PipelineError(f"{field}: unknown stage(s) {unknown}; declared stages: {list(specs)}")
 
 
-def select_stages(specs: dict[str, StageSpec], until: str | None) -> list[str]:
-    """Stages to run, in order: all of them, or ``until`` and its ancestors."""
-    if until is None:
-        return list(specs)
-    check_stage_names(specs, [until], "pipeline.until")
-    needed = ancestors(specs, until)
-    return [n for n in specs if n in needed]
+def select_stages(specs: dict[str, StageSpec], until: str | None,
+                  skip: list[str] | tuple[str, ...] = ()) -> tuple[list[str], dict[str, str]]:
+    """(stages to run in order, {stage left out: why}): all of them, or ``until`` and its ancestors; minus
+    the ``skip`` stages and every stage with a skipped stage among its required (not ``optional``) inputs."""
+    check_stage_names(specs, list(skip), "pipeline.skip")
+    if until is not None:
+        check_stage_names(specs, [until], "pipeline.until")
+        if until in skip:
+            raise PipelineError(f"pipeline.until={until} is also in pipeline.skip: nothing would be left to run")
+    needed = set(specs) if until is None else ancestors(specs, until)
+    why: dict[str, str] = {n: "not needed for pipeline.until" for n in specs if n not in needed}
+    why.update({n: "pipeline.skip" for n in skip})
+    for name, spec in specs.items():  # topological order: an input's fate is known before its consumers'
+        if name in why:
+            continue
+        lost = [i for i in spec.inputs if i in why and i not in spec.optional]
+        if lost:
+            why[name] = f"needs {', '.join(lost)}"
+    if until is not None and until in why:
+        raise PipelineError(f"pipeline.until={until}: it {why[until]}, which pipeline.skip leaves out")
+    return [n for n in specs if n not in why], why

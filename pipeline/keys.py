@@ -72,6 +72,7 @@ def key_parts(spec: StageSpec, cfg: DictConfig, input_keys: dict[str, str]) -> K
         code=version.files,
         code_digest=version.digest,
         config=resolved_subtree(cfg, spec.config),
-        inputs={name: input_keys[name] for name in spec.inputs},
+        # an optional input left out of the run is absent from the key: the stage ran without it
+        inputs={name: input_keys[name] for name in spec.inputs if name in input_keys or name not in spec.optional},
         watch=watch_fingerprint(list(spec.watch)),
     )

@@ -92,11 +92,13 @@ def explain_hit(parts: KeyParts, latest: dict | None) -> str:
     return "cached entry from an earlier run"
 
 
-def format_plan(plans: list[StagePlan], cache_root: str, skipped: list[str]) -> str:
+def format_plan(plans: list[StagePlan], cache_root: str, left_out: dict[str, str]) -> str:
     width = max(len(p.name) for p in plans)
     lines = [f"Pipeline plan (cache: {cache_root}):"]
     for p in plans:
         lines.append(f"  {p.name:<{width}}  {'HIT ' if p.hit else 'MISS'}  {p.key[:10]}  {p.reason}")
-    if skipped:
-        lines.append(f"  (not needed for pipeline.until: {', '.join(skipped)})")
+    by_reason: dict[str, list[str]] = {}
+    for name, why in left_out.items():
+        by_reason.setdefault(why, []).append(name)
+    lines += [f"  (not run, {why}: {', '.join(names)})" for why, names in by_reason.items()]
     return "\n".join(lines)

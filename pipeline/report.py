@@ -23,13 +23,14 @@ def _main_metrics(metrics: dict[str, float]) -> str:
 
 
 def summary_table(summary: dict) -> str:
-    stages = summary["stages"]
-    width = max([len("stage"), *(len(n) for n in stages)])
+    stages, not_run = summary["stages"], summary.get("not_run", {})
+    width = max([len("stage"), *(len(n) for n in [*stages, *not_run])])
     lines = [f"{'stage':<{width}}  {'cache':<5}  {'seconds':>8}  {'key':<10}  metrics"]
     for name, s in stages.items():
         lines.append(
             f"{name:<{width}}  {'hit' if s['hit'] else 'miss':<5}  {s['seconds']:>8.2f}  {s['key'][:10]}  "
             f"{_main_metrics(s['metrics'])}"
         )
+    lines += [f"{name:<{width}}  {'-':<5}  {'':>8}  {'':<10}  not run: {why}" for name, why in not_run.items()]
     lines.append(f"pipeline: {summary['pipeline_seconds']:.2f} s; MLflow run {summary['mlflow_run_id']}")
     return "\n".join(lines)

@@ -55,6 +55,7 @@ def _settings(cfg: DictConfig, launch_dir: Path) -> dict:
     p = cfg.pipeline
     force = list(p.get("force") or [])
     until = p.get("until")
+    skip = list(p.get("skip") or [])
     verify = p.get("verify", "fast")
     if verify not in VERIFY_MODES:
         raise PipelineError(f"pipeline.verify: expected one of {VERIFY_MODES}, got {verify!r}")
@@ -65,7 +66,7 @@ def _settings(cfg: DictConfig, launch_dir: Path) -> dict:
     if t is None:
         raise PipelineError("config has no 'tracking' group (tracking.uri, tracking.experiment)")
     return {
-        "force": force, "until": until, "verify": verify, "cache_dir": cache_dir,
+        "force": force, "until": until, "skip": skip, "verify": verify, "cache_dir": cache_dir,
         "uri": str(t.uri), "experiment": str(t.get("experiment", "deepword")),
         "require_server": bool(t.get("require_server", False)),
     }
@@ -148,7 +149,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
                outputs: dict[str, Path], settings: dict) -> dict:
     name, key = plan.name, plan.key
-    inputs = {i: outputs[i] for i in spec.inputs}
+    inputs = {i: outputs[i] for i in spec.inputs if i in outputs}  # an optional input may be left out
     start = time.perf_counter()
     entry = plan.entry
     if not plan.hit:
@@ -227,29 +228,29 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     settings = _settings(cfg, launch_dir)
     specs = load_stages(cfg)
     check_stage_names(specs, settings["force"], "pipeline.force")
-    selected = select_stages(specs, settings["until"])
+    selected, left_out = select_stages(specs, settings["until"], settings["skip"])
     for name in selected:
         check_values(cfg, name, specs[name].checks)
-    skipped = [n for n in specs if n not in selected]
     if settings["require_server"]:
         check_server(settings["uri"])
     cache = Cache(settings["cache_dir"])
     plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"])
-    _say(format_plan(plans, str(cache.root), skipped))
-    ignored = [n for n in settings["force"] if n in skipped]
+    _say(format_plan(plans, str(cache.root), left_out))
+    ignored = [n for n in settings["force"] if n in left_out]
     if ignored:
-        _say(f"note: forced stage(s) {ignored} are not needed for pipeline.until={settings['until']}; not run")
+        _say(f"note: forced stage(s) {ignored} are left out of this run ({'; '.join(left_out[n] for n in ignored)}); "
+             "not run")
     for name in selected:
         cache.sweep(name)
 
     tracker = open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, skipped, t0)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0)
     finally:
         tracker.close()
 
 
-def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, skipped, t0) -> dict:
+def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0) -> dict:
     resolved = OmegaConf.to_container(cfg, resolve=True)
     parent_tags = {
         "profile": str(cfg.get("profile_name", "")),
@@ -288,7 +289,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
         "experiment": settings["experiment"],
         "cache_dir": str(cache.root),
         "stages": results,
-        "not_run": skipped,
+        "not_run": left_out,  # stage -> why it was left out
     }
     write_summary(run_dir, summary)
     _say(summary_table(summary))

@@ -2,7 +2,7 @@
 
 Every job of a sweep writes the engine's ``summary.json`` in its own directory (``<sweep dir>/<job num>``).
 This module reads them back and writes ``<sweep dir>/sweep_summary.json`` plus a printed table, so a
-user sees that the stages the jobs share (data, priors, detector) were computed once for the whole
+user sees that the stages the jobs share (data, priors) were computed once for the whole
 sweep and only the stages the swept options change ran in every job.
 
 Hydra calls ``SweepSummary.on_multirun_end`` when a sweep ends (``hydra.callbacks`` in the experiment

@@ -85,11 +85,14 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
 
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     """Detections of the test split: from the exported detector in onnxruntime when the export stage is
-    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``."""
+    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``; None
+    when the run has no detector."""
     if "export" in ctx.inputs:
-        from stages.export.runtime import OnnxDetector
+        from stages.export.runtime import OnnxDetector, has_detector
         from stages.word_format import load_image
 
+        if not has_detector(ctx.inputs["export"]):
+            return None
         detector = OnnxDetector(ctx.inputs["export"])
         return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
     if "detector" not in ctx.inputs:

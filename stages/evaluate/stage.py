@@ -51,7 +51,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
             raise ValueError(f"eval.box_sources: unknown source {boxes!r}; known: {sorted(BOX_SOURCES)}")
         inputs_by_image = BOX_SOURCES[boxes](ctx)
         if inputs_by_image is None:
-            ctx.notes.append(f"`{boxes}` boxes skipped: their upstream stage is not an input of evaluate")
+            ctx.notes.append(f"`{boxes}` boxes skipped: this run has no detector (not an input of evaluate, "
+                             "or left out with pipeline.skip)")
             continue
         for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
             inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],

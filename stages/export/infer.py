@@ -67,7 +67,7 @@ def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], d
     return root, records, pixels
 
 
-def resolve_dirs(args) -> dict[str, Path]:
+def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     """The export (and, for a baseline, evaluate) stage directories to use."""
     from stages.export.resolve import stage_dirs
 
@@ -76,7 +76,7 @@ def resolve_dirs(args) -> dict[str, Path]:
         if args.evaluate is not None:
             dirs["evaluate"] = args.evaluate
         return dirs
-    run_id, dirs = stage_dirs(args.run, args.tracking_uri, args.cache_dir)
+    run_id, dirs = stage_dirs(args.run, args.tracking_uri, args.cache_dir, need_detector=need_detector)
     print(f"using the artifacts of pipeline run {run_id}", file=sys.stderr)
     return dirs
 
@@ -115,7 +115,7 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record) -> Path:
 def infer(args) -> list[Record]:
     from stages.word_format import load_image
 
-    dirs = resolve_dirs(args)
+    dirs = resolve_dirs(args, need_detector=args.detect or args.dataset is None)
     if args.dataset is not None:
         from stages.evaluate.methods import boxes_only
         from stages.evaluate.score import ScoreError, load_ground_truth
@@ -178,10 +178,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.detect and args.dataset is None:
         p.error("--detect goes with --dataset (loose images are always detected)")
     from stages.export.resolve import ResolveError
+    from stages.export.runtime import NoDetectorError
 
     try:
         preds = infer(args)
-    except (InferError, DatasetError, ResolveError, FileNotFoundError) as exc:
+    except (InferError, DatasetError, ResolveError, NoDetectorError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     n_rel = sum(len(r.relations) for r in preds)

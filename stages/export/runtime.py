@@ -154,6 +154,14 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
 # --- detector ---------------------------------------------------------------------------------------
 
+class NoDetectorError(LookupError):
+    """The bundle was exported without a detector (its run had ``pipeline.skip=[detector]``)."""
+
+
+def has_detector(bundle_dir: str | os.PathLike) -> bool:
+    return read_bundle(bundle_dir).get("detector") is not None
+
+
 class OnnxDetector:
     """The exported CenterNet: letterbox + normalise (``stages.detector.letterbox``), onnxruntime, and the
     detector stage's own detections -> WORD record conversion."""
@@ -161,6 +169,9 @@ class OnnxDetector:
     def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
         bundle_dir = Path(bundle_dir)
         cfg = read_bundle(bundle_dir)["detector"]
+        if cfg is None:
+            raise NoDetectorError(f"{bundle_dir}: this export has no detector (its pipeline run left it out with "
+                                  "pipeline.skip=[detector]); use a run that trained one")
         self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
         self.score_threshold = float(cfg["score_threshold"])
         self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)

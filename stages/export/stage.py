@@ -1,6 +1,8 @@
 """The `export` stage: the trained relation network and detector to ONNX, checked, quantised and timed.
 
 1. export: relation (static N = max_objects; dynamic N), detector (dynamic batch), ``onnx.checker``;
+   the detector is an optional input: without it (``pipeline.skip=[detector]``) the bundle holds the
+   relation network only, and every detector step below is left out;
 2. parity against PyTorch on the test split (relation: every test image, both variants; detector:
    ``export.parity.detector_images`` images); a miss of the tolerances fails the stage;
 3. INT8: onnxruntime dynamic quantisation of the dynamic relation model (``export.int8.op_types``), and
@@ -63,12 +65,14 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
     return dst
 
 
-def write_bundle(out_dir: Path, meta: dict, det_cfg: dict, extra: dict) -> None:
+def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict) -> None:
+    """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector."""
+    detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
+                                                                      "score_threshold", "class_names")}
+    files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
                            "model": meta["model"]},
-              "detector": {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
-                                                   "score_threshold", "class_names")},
-              "files": {**RELATION_FILES, "detector": DETECTOR_FILE, "priors": PRIORS_FILE}, **extra}
+              "detector": detector, "files": files, **extra}
     (out_dir / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
 
 
@@ -162,10 +166,14 @@ def latency_table(m: dict[str, float]) -> str:
         f"| relation INT8, onnxruntime, real object counts | {r['int8_ms_per_img_b1']:.2f} | | "
         f"| {r['int8.size_mb']:.2f} |",
         f"| paper (embedded DSP) | {PAPER_MS_PER_IMG_B1} | {PAPER_MS_PER_10IMG_B10} | | |",
-        f"| detector, onnxruntime | {m['export.detector.ms_per_img_b1']:.2f} | {m['export.detector.ms_per_10img_b10']:.1f} "
-        f"| {m['export.detector.params']:.0f} | {m['export.detector.size_mb']:.2f} |",
-        f"| detector, PyTorch eager | {m['export.detector.torch_ms_per_img_b1']:.2f} | | | |",
     ]
+    if "export.detector.ms_per_img_b1" in m:
+        rows += [
+            f"| detector, onnxruntime | {m['export.detector.ms_per_img_b1']:.2f} "
+            f"| {m['export.detector.ms_per_10img_b10']:.1f} | {m['export.detector.params']:.0f} "
+            f"| {m['export.detector.size_mb']:.2f} |",
+            f"| detector, PyTorch eager | {m['export.detector.torch_ms_per_img_b1']:.2f} | | | |",
+        ]
     return "\n".join(rows) + (f"\n\nonnxruntime is {r['speedup_vs_torch']:.2f}x faster than PyTorch eager at batch 1 "
                               f"and {r['speedup_vs_torch_b10']:.2f}x at batch 10 (same process, same inputs).\n")
 
@@ -187,7 +195,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     torch.manual_seed(int(cfg.seed))
     ds = open_dataset(inputs["data"])
     net, meta = load_network(inputs["relation"])
-    det_net, det_cfg = load_detector(inputs["detector"])
+    det_net, det_cfg = load_detector(inputs["detector"]) if "detector" in inputs else (None, None)
     in_cfg = InputConfig(**meta["inputs"])
     shutil.copy(Path(inputs["priors"]) / PRIORS_FILE, out_dir / PRIORS_FILE)
     priors = load_priors(out_dir / PRIORS_FILE)
@@ -195,8 +203,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
     export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
     quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
-    export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
-                    det_cfg["max_detections"])
+    if det_net is not None:
+        export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
+                        det_cfg["max_detections"])
     write_bundle(out_dir, meta, det_cfg, {})
 
     test = _limit(ds.subset("test"), ex.parity.images)
@@ -213,29 +222,34 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         "int8": relation_parity(net, ort_session(out_dir / RELATION_FILES["int8"], threads), graphs,
                                 in_cfg.input_size, threshold, None),
     }
-    det_images = np.stack([preprocess(load_image(ds.root, r), det_cfg["input_width"], det_cfg["input_height"])[0]
-                           for r in _limit(test, ex.parity.detector_images)])
-    reports["detector"] = detector_parity(det_net, ort_session(out_dir / DETECTOR_FILE, threads), det_images,
-                                          det_cfg["max_detections"], det_cfg["score_threshold"])
+    if det_net is not None:
+        det_images = np.stack([preprocess(load_image(ds.root, r), det_cfg["input_width"], det_cfg["input_height"])[0]
+                               for r in _limit(test, ex.parity.detector_images)])
+        reports["detector"] = detector_parity(det_net, ort_session(out_dir / DETECTOR_FILE, threads), det_images,
+                                              det_cfg["max_detections"], det_cfg["score_threshold"])
     for name in ("static", "dynamic", "detector"):
-        reports[name].check(f"export: {name} model", tol, agree)
+        if name in reports:
+            reports[name].check(f"export: {name} model", tol, agree)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
         "export.relation.parity_decision_agreement": min(reports[v].decision_agreement for v in ("static", "dynamic")),
         "export.relation.parity_pairs": float(reports["static"].decisions),
         **reports["static"].metrics("export.relation.static"), **reports["dynamic"].metrics("export.relation.dynamic"),
-        **reports["int8"].metrics("export.relation.int8"), **reports["detector"].metrics("export.detector"),
+        **reports["int8"].metrics("export.relation.int8"),
         "export.relation.params": float(count_parameters(net)),
         "export.relation.size_mb": size_mb(out_dir / RELATION_FILES["static"]),
         "export.relation.int8.size_mb": size_mb(out_dir / RELATION_FILES["int8"]),
-        "export.detector.params": float(sum(p.numel() for p in det_net.parameters())),
-        "export.detector.size_mb": size_mb(out_dir / DETECTOR_FILE),
     }
+    if det_net is not None:
+        metrics.update({**reports["detector"].metrics("export.detector"),
+                        "export.detector.params": float(sum(p.numel() for p in det_net.parameters())),
+                        "export.detector.size_mb": size_mb(out_dir / DETECTOR_FILE)})
     metrics.update(int8_accuracy_change(ds, out_dir, test, graphs, float(ex.min_box_px)))
     lat_graphs = graphs[: int(ex.latency.images)]
     metrics.update(relation_latency(net, out_dir, lat_graphs, in_cfg.input_size, in_cfg.max_objects, ex.latency))
-    metrics.update(detector_latency(det_net, out_dir, det_images[: int(ex.latency.images)], ex.latency))
+    if det_net is not None:
+        metrics.update(detector_latency(det_net, out_dir, det_images[: int(ex.latency.images)], ex.latency))
 
     artifacts = out_dir / "artifacts"
     artifacts.mkdir(exist_ok=True)
@@ -248,9 +262,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if tracking is not None and bool(ex.register):
         from stages.export.registry import register_models
 
-        per_model = {m: {k: v for k, v in metrics.items() if k.startswith(f"export.{m}.")} for m in ("relation", "detector")}
+        models = {"relation": out_dir / RELATION_FILES["static"]}
+        if det_net is not None:
+            models["detector"] = out_dir / DETECTOR_FILE
+        per_model = {m: {k: v for k, v in metrics.items() if k.startswith(f"export.{m}.")} for m in models}
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
-        registered = register_models(tracking, {"relation": out_dir / RELATION_FILES["static"],
-                                                "detector": out_dir / DETECTOR_FILE}, per_model)
+        registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads})
     return metrics

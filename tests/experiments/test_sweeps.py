@@ -42,6 +42,18 @@ def test_table3_is_one_job_of_the_default_configuration():
     assert compose_config(["experiment=table3"])["relation"] == compose_config([])["relation"]
 
 
+@pytest.mark.parametrize("table", ["table1", "table2", "table3"])
+def test_paper_tables_leave_the_detector_out_and_keep_every_stage_their_numbers_come_from(table):
+    from omegaconf import OmegaConf
+
+    from pipeline.dag import load_stages, select_stages
+
+    cfg = OmegaConf.create(compose_config([f"experiment={table}"]))
+    selected, left_out = select_stages(load_stages(cfg), None, list(cfg.pipeline.skip))
+    assert left_out == {"detector": "pipeline.skip"}
+    assert selected == ["data", "priors", "relation", "export", "evaluate"]
+
+
 def _without_sweep_fields(train: dict) -> dict:
     """relation.train less what the ablation sweeps set for their rows (budget and threads)."""
     return {k: v for k, v in train.items() if k not in ("epochs", "patience", "threads")}
@@ -57,7 +69,7 @@ def test_ablation_sweeps_train_every_row_with_the_profiles_sweep_budget(profile)
         train = row["relation"]["train"]
         assert (train["epochs"], train["patience"]) == (budget["relation_epochs"], budget["relation_patience"])
         assert train["threads"] == 1  # two rows side by side on two cores, not four threads on two
-        assert row["trainer"] == pipeline_run["trainer"]  # so the shared detector is the pipeline's entry
+        assert row["trainer"] == pipeline_run["trainer"]
         assert _without_sweep_fields(train) == _without_sweep_fields(pipeline_run["relation"]["train"])
     assert pipeline_run["relation"]["train"]["threads"] == pipeline_run["trainer"]["threads"]
     if profile == "quick":  # the point of the budget: the sweeps' rows train shorter than the pipeline's

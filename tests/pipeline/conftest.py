@@ -57,7 +57,7 @@ def run(cfg, inputs, out_dir):
 GAMMA = """
 def run(cfg, inputs, out_dir):
     (out_dir / "g.txt").write_text("g")
-    return {"gamma.ok": 1.0}
+    return {"gamma.ok": 1.0, "gamma.inputs": float(len(inputs))}
 """
 
 

@@ -42,5 +42,22 @@ def test_order_is_topological_and_until_selects_ancestors(toy):
     cfg = toy.config(**{"pipeline.stages.c.inputs": ["b"]})
     specs = load_stages(cfg)
     assert list(specs) == ["a", "b", "c"]
-    assert select_stages(specs, "b") == ["a", "b"]
-    assert select_stages(specs, None) == ["a", "b", "c"]
+    assert select_stages(specs, "b") == (["a", "b"], {"c": "not needed for pipeline.until"})
+    assert select_stages(specs, None) == (["a", "b", "c"], {})
+
+
+def test_skip_leaves_out_the_stage_and_what_requires_it_but_not_what_can_do_without_it(toy):
+    cfg = toy.config(**{"pipeline.stages.c.inputs": ["a"], "pipeline.stages.c.optional": ["a"]})
+    specs = load_stages(cfg)
+    assert select_stages(specs, None, ["a"]) == (["c"], {"a": "pipeline.skip", "b": "needs a"})
+    assert select_stages(specs, "c", ["b"]) == (["a", "c"], {"b": "pipeline.skip"})
+    with pytest.raises(PipelineError, match=r"pipeline.until=b: it needs a, which pipeline.skip leaves out"):
+        select_stages(specs, "b", ["a"])
+
+
+def test_bad_skip_and_optional_are_reported_before_any_stage_runs(toy):
+    _fails_before_running(toy, toy.config(**{"pipeline.skip": ["zeta"]}), r"pipeline.skip: unknown stage\(s\) \['zeta'\]")
+    _fails_before_running(toy, toy.config(**{"pipeline.skip": ["b"], "pipeline.until": "b"}),
+                          r"pipeline.until=b is also in pipeline.skip")
+    _fails_before_running(toy, toy.config(**{"pipeline.stages.c.optional": ["a"]}),
+                          r"pipeline.stages.c.optional: \['a'\] not among its inputs \[\]")

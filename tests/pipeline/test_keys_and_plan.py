@@ -91,5 +91,20 @@ def test_force_recomputes_only_the_named_stage(toy, capsys):
 def test_until_runs_only_the_stage_and_its_ancestors(toy, capsys):
     summary, out = run(toy, toy.config(**{"pipeline.until": "b"}), capsys)
     assert list(summary["stages"]) == ["a", "b"]
-    assert summary["not_run"] == ["c"]
-    assert "not needed for pipeline.until: c" in out
+    assert summary["not_run"] == {"c": "not needed for pipeline.until"}
+    assert "not run, not needed for pipeline.until: c" in out
+
+
+def test_a_stage_run_without_its_optional_input_has_its_own_key_and_the_plan_says_why(toy, capsys):
+    optional_a = {"pipeline.stages.c.inputs": ["a"], "pipeline.stages.c.optional": ["a"]}
+    full, _ = run(toy, toy.config(**optional_a), capsys)
+    assert full["stages"]["c"]["metrics"]["gamma.inputs"] == 1.0
+    without, out = run(toy, toy.config(**optional_a, **{"pipeline.skip": ["a"]}), capsys)
+    assert list(without["stages"]) == ["c"] and without["not_run"] == {"a": "pipeline.skip", "b": "needs a"}
+    assert "not run, pipeline.skip: a" in out and "not run, needs a: b" in out
+    assert "not run: pipeline.skip" in out.splitlines()[-3]  # the summary table too
+    assert without["stages"]["c"]["metrics"]["gamma.inputs"] == 0.0  # the stage got no 'a' input
+    assert without["stages"]["c"]["key"] != full["stages"]["c"]["key"]
+    assert "inputs changed: ['a'] -> []" in out
+    again, _ = run(toy, toy.config(**optional_a), capsys)
+    assert all(hits(again).values())  # both variants stay cached side by side

@@ -14,3 +14,34 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
         gt = report["results"]["gt"]
         assert gt["deepword"][subset]["wheel_acc"] == metrics[f"export.relation.fp32.{subset}.wheel_acc"]
         assert gt["deepword_int8"][subset]["wheel_acc"] == metrics[f"export.relation.int8.{subset}.wheel_acc"]
+
+
+def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_ground_truth_boxes(upstream, tmp_path):
+    """``pipeline.skip=[detector]`` (the paper tables' sweeps): export and evaluate run without it."""
+    import pytest
+    from omegaconf import OmegaConf
+    from tiny_models import EXPORT_CFG
+
+    from stages.evaluate.stage import run as evaluate
+    from stages.export.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
+    from stages.export.stage import run as export
+
+    relation_only = {k: v for k, v in upstream.items() if k != "detector"}
+    out = tmp_path / "export"
+    out.mkdir()
+    metrics = export(OmegaConf.create({"export": EXPORT_CFG, "seed": 0}), relation_only, out)
+    assert not (out / DETECTOR_FILE).exists() and json.loads((out / BUNDLE_FILE).read_text())["detector"] is None
+    assert metrics["export.relation.ms_per_img_b1"] > 0 and metrics["export.relation.parity_max_abs_diff"] <= 1e-4
+    assert not [k for k in metrics if k.startswith("export.detector.")]
+    assert "detector" not in (out / "artifacts" / "latency.md").read_text()
+    with pytest.raises(NoDetectorError, match="pipeline.skip=\\[detector\\]"):
+        OnnxDetector(out)
+
+    ev = tmp_path / "evaluate"
+    ev.mkdir()
+    cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "deepword"], "box_sources": ["gt", "detected"],
+           "fit_images": 20, "gallery_images": 0}
+    evaluate(OmegaConf.create({"eval": cfg, "seed": 0}), {**relation_only, "export": out}, ev)
+    report = json.loads((ev / "report.json").read_text())
+    assert set(report["results"]) == {"gt"} and set(report["results"]["gt"]) == {"logic", "deepword"}
+    assert any("`detected` boxes skipped" in n for n in report["notes"])

@@ -102,7 +102,7 @@ def test_run_id_resolves_to_the_runs_cache_entries(upstream, exported, evaluated
 
     from mlflow.tracking import MlflowClient
 
-    from stages.export.resolve import stage_dirs
+    from stages.export.resolve import ResolveError, stage_dirs
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(tracking_uri=uri)
@@ -126,6 +126,11 @@ def test_run_id_resolves_to_the_runs_cache_entries(upstream, exported, evaluated
     assert all(got[w.image].relations == w.relations for w in want)
     assert infer([*argv, "--run", "0123456789abcdef"]) == 2
     assert "0123456789abcdef" in capsys.readouterr().err
+    # this run has no detector stage (pipeline.skip=[detector]): detection needs another run, said clearly
+    with pytest.raises(ResolveError, match=r"no finished pipeline run with the stages \['detector', 'export'\]"):
+        stage_dirs(None, uri, need_detector=True)
+    assert infer([*argv, "--run", parent, "--detect"]) == 2
+    assert f"run {parent} has no detector" in capsys.readouterr().err
 
 
 def test_deepword_command_dispatches_and_rejects_unknown_commands(capsys):
