@@ -9,7 +9,8 @@ present at inference time::
     relation_static.onnx   objects padded to max_objects (static N; batch dynamic): for embedded runtimes
     relation_dynamic.onnx  batch and object count dynamic
     relation_int8.onnx     INT8 (onnxruntime dynamic quantisation of relation_dynamic.onnx)
-    detector.onnx          CenterNet + decoding, dynamic batch: images -> (B, K, 6) detections
+    detector.onnx          CenterNet + decoding, dynamic batch: images -> (B, K, 6) detections; absent, with
+                           export.json "detector": null, when the run left the detector out (pipeline.skip)
 
 Evaluation and inference run the dynamic-N models, so every image is run at its real object count (the
 static model gives the same scores within the parity tolerance; both are checked against PyTorch).
