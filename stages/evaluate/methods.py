@@ -88,12 +88,13 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``; None
     when the run has no detector."""
     if "export" in ctx.inputs:
-        from stages.export.runtime import OnnxDetector, has_detector
+        from stages.export.runtime import NoDetectorError, OnnxDetector
         from stages.word_format import load_image
 
-        if not has_detector(ctx.inputs["export"]):
+        try:
+            detector = OnnxDetector(ctx.inputs["export"])
+        except NoDetectorError:
             return None
-        detector = OnnxDetector(ctx.inputs["export"])
         return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
     if "detector" not in ctx.inputs:
         return None

@@ -159,10 +159,6 @@ class NoDetectorError(LookupError):
     """The bundle was exported without a detector (its run had ``pipeline.skip=[detector]``)."""
 
 
-def has_detector(bundle_dir: str | os.PathLike) -> bool:
-    return read_bundle(bundle_dir).get("detector") is not None
-
-
 class OnnxDetector:
     """The exported CenterNet: letterbox + normalise (``stages.detector.letterbox``), onnxruntime, and the
     detector stage's own detections -> WORD record conversion."""

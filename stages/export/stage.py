@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from stages.export.runtime import (
     ort_session,
 )
 from stages.word_format import SUBSETS, load_image, open_dataset
+
+if TYPE_CHECKING:
+    from stages.export.parity import ParityReport
 
 PAPER_MS_PER_IMG_B1 = 3.2     # DeepWORD on an embedded DSP (paper, Tables 1-2)
 PAPER_MS_PER_10IMG_B10 = 13.1
@@ -178,14 +182,35 @@ def latency_table(m: dict[str, float]) -> str:
                               f"and {r['speedup_vs_torch_b10']:.2f}x at batch 10 (same process, same inputs).\n")
 
 
+def export_detector_checked(det_net, det_cfg: dict, ds, test: list, out_dir: Path, ex, tol: float,
+                            agree: float) -> tuple[ParityReport, dict[str, float]]:
+    """detector.onnx: exported, checked against PyTorch (a miss fails the stage) and timed; returns its
+    parity report and its ``export.detector.*`` metrics."""
+    from stages.detector.letterbox import preprocess
+    from stages.export.onnx_export import export_detector
+    from stages.export.parity import detector_parity
+
+    export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
+                    det_cfg["max_detections"])
+    images = np.stack([preprocess(load_image(ds.root, r), det_cfg["input_width"], det_cfg["input_height"])[0]
+                       for r in _limit(test, ex.parity.detector_images)])
+    report = detector_parity(det_net, ort_session(out_dir / DETECTOR_FILE, int(ex.latency.threads)), images,
+                             det_cfg["max_detections"], det_cfg["score_threshold"])
+    report.check("export: detector model", tol, agree)
+    metrics = {**report.metrics("export.detector"),
+               "export.detector.params": float(sum(p.numel() for p in det_net.parameters())),
+               "export.detector.size_mb": size_mb(out_dir / DETECTOR_FILE),
+               **detector_latency(det_net, out_dir, images[: int(ex.latency.images)], ex.latency)}
+    return report, metrics
+
+
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import torch
 
     from pipeline.tracking import stage_run_info
-    from stages.detector.letterbox import preprocess
     from stages.detector.model import load_detector
-    from stages.export.onnx_export import export_detector, export_relation
-    from stages.export.parity import detector_parity, relation_parity
+    from stages.export.onnx_export import export_relation
+    from stages.export.parity import relation_parity
     from stages.priors.mixture import load_priors
     from stages.relation.inputs import InputConfig, build_graph
     from stages.relation.model import count_parameters
@@ -203,9 +228,6 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
     export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
     quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
-    if det_net is not None:
-        export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
-                        det_cfg["max_detections"])
     write_bundle(out_dir, meta, det_cfg, {})
 
     test = _limit(ds.subset("test"), ex.parity.images)
@@ -222,14 +244,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         "int8": relation_parity(net, ort_session(out_dir / RELATION_FILES["int8"], threads), graphs,
                                 in_cfg.input_size, threshold, None),
     }
+    for name in ("static", "dynamic"):
+        reports[name].check(f"export: {name} model", tol, agree)
+    det_metrics = {}
     if det_net is not None:
-        det_images = np.stack([preprocess(load_image(ds.root, r), det_cfg["input_width"], det_cfg["input_height"])[0]
-                               for r in _limit(test, ex.parity.detector_images)])
-        reports["detector"] = detector_parity(det_net, ort_session(out_dir / DETECTOR_FILE, threads), det_images,
-                                              det_cfg["max_detections"], det_cfg["score_threshold"])
-    for name in ("static", "dynamic", "detector"):
-        if name in reports:
-            reports[name].check(f"export: {name} model", tol, agree)
+        reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -240,16 +259,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         "export.relation.params": float(count_parameters(net)),
         "export.relation.size_mb": size_mb(out_dir / RELATION_FILES["static"]),
         "export.relation.int8.size_mb": size_mb(out_dir / RELATION_FILES["int8"]),
+        **det_metrics,
     }
-    if det_net is not None:
-        metrics.update({**reports["detector"].metrics("export.detector"),
-                        "export.detector.params": float(sum(p.numel() for p in det_net.parameters())),
-                        "export.detector.size_mb": size_mb(out_dir / DETECTOR_FILE)})
     metrics.update(int8_accuracy_change(ds, out_dir, test, graphs, float(ex.min_box_px)))
     lat_graphs = graphs[: int(ex.latency.images)]
     metrics.update(relation_latency(net, out_dir, lat_graphs, in_cfg.input_size, in_cfg.max_objects, ex.latency))
-    if det_net is not None:
-        metrics.update(detector_latency(det_net, out_dir, det_images[: int(ex.latency.images)], ex.latency))
 
     artifacts = out_dir / "artifacts"
     artifacts.mkdir(exist_ok=True)
