@@ -119,6 +119,18 @@ def pair_geometry(coords: torch.Tensor) -> torch.Tensor:
     return torch.cat([edges.clamp(-10, 10), log_ratio.clamp(-5, 5), shares], -1)
 
 
+def neighbour_softmax(logits: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+    """Eq. 4: softmax of the edge logits (B, N, N) over each node's neighbours (bool (B, N, N))."""
+    logits = torch.where(neighbours, logits, torch.full_like(logits, _MASKED_LOGIT))
+    # a node without neighbours (padding) gets a uniform row from softmax: zero it
+    return torch.softmax(logits, dim=-1) * neighbours.to(logits.dtype)
+
+
+def row_normalised(weights: torch.Tensor) -> torch.Tensor:
+    """Edge weights (B, N, N) divided by their row sums (an empty row, a padded node, stays zero)."""
+    return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
 class EdgeAttention(nn.Module):
     """Eq. 3-5: e_ij = FC(ReLU(FC(concat(x_i, x_j)))), Scale_ij = softmax of e_ij over i's neighbours.
     The first FC on the concatenation is split into its x_i and x_j halves (the same linear map) so the
@@ -143,10 +155,7 @@ class EdgeAttention(nn.Module):
             if geometry is None:
                 raise ValueError("EdgeAttention(edge_geometry=True) needs the pair geometry of the boxes (coords)")
             pair = pair + F.linear(geometry, self.fc1.weight[:, 2 * self.dim :])
-        logits = self.fc2(F.relu(pair)).squeeze(-1)
-        logits = torch.where(neighbours, logits, torch.full_like(logits, _MASKED_LOGIT))
-        # a node without neighbours (padding) gets a uniform row from softmax: zero it
-        return torch.softmax(logits, dim=-1) * neighbours.to(logits.dtype)
+        return neighbour_softmax(self.fc2(F.relu(pair)).squeeze(-1), neighbours)
 
 
 class GeometryGate(nn.Module):
@@ -217,24 +226,33 @@ class RelationNet(nn.Module):
         ``geometry`` (B, N, N, 8) = ``pair_geometry(coords)``: needed only with ``edge_geometry``."""
         neighbours = adj > 0
         scale = self.attention(h, neighbours, geometry) if self.attention is not None else neighbours.to(adj.dtype)
-        weights = adj * scale
-        return weights / weights.sum(dim=-1, keepdim=True).clamp_min(1e-12), scale
+        return row_normalised(adj * scale), scale
+
+    @property
+    def needs_geometry(self) -> bool:
+        """Whether ``relate`` needs the boxes (coords): for the geometry gate or the GAT's edge geometry."""
+        return self.gate is not None or (self.attention is not None and self.cfg.edge_geometry)
 
     def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
         """Graph part on backbone features h (B, N, hidden) and normalised boxes coords (B, N, 4)."""
-        needs_geometry = self.gate is not None or (self.attention is not None and self.cfg.edge_geometry)
-        if needs_geometry and coords is None:
+        if self.needs_geometry and coords is None:
             raise ValueError("RelationNet: edge_geometry and geometry_gate need the normalised boxes (coords)")
-        geometry = pair_geometry(coords) if needs_geometry else None  # computed once for both users
+        geometry = pair_geometry(coords) if self.needs_geometry else None  # computed once for both users
         weights, _ = self.edge_weights(h, adj, geometry)
+        return self.readout(h, weights, cand, self.gate(geometry) if self.gate is not None else None)
+
+    def readout(self, h: torch.Tensor, weights: torch.Tensor, cand: torch.Tensor, gate: torch.Tensor | None):
+        """``relate``'s tail: residual graph convolution with the row-normalised edge weights (B, N, N),
+        the two embedding heads, their cosines times cand, the ownership cosines times ``gate`` (B, N, N)
+        (the geometry gate's output, None without one), and the front probability."""
         for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
             h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
         couple = F.normalize(self.couple_head(h), dim=-1)
         cand = cand.to(h.dtype)
         owner_scores = (owner @ owner.transpose(1, 2)) * cand
-        if self.gate is not None:
-            owner_scores = owner_scores * self.gate(geometry)
+        if gate is not None:
+            owner_scores = owner_scores * gate
         couple_scores = (couple @ couple.transpose(1, 2)) * cand
         front = torch.sigmoid(self.role_head(h).squeeze(-1))
         return owner_scores, couple_scores, front

@@ -47,7 +47,7 @@ def test_folded_backbone_computes_the_backbone_of_the_node_tensor(backbone):
     coords = torch.rand((5, 4), generator=gen)
     with torch.no_grad():
         ref = net.backbone(node_tensor(crops, coords))
-        folded = FoldedBackbone(net.backbone)(crops, coords)
+        folded = FoldedBackbone(net.backbone, cfg.input_size)(crops, coords)
     assert ref.abs().max() > 0.1
     torch.testing.assert_close(folded, ref, atol=1e-5, rtol=1e-5)
 
