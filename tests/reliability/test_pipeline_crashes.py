@@ -34,14 +34,21 @@ def wait_for(predicate, timeout: float, proc: subprocess.Popen, log: Path):
     pytest.fail(f"timed out waiting; log:\n{log.read_text()[-3000:]}")
 
 
-def stable_file(pattern: str, root: Path):
-    """A file matching ``pattern`` whose size did not change over 0.2 s (a checkpoint fully written)."""
+def frozen_with_checkpoint(pattern: str, root: Path, proc: subprocess.Popen):
+    """A predicate for ``wait_for``: once a file matching ``pattern`` exists, stop the pipeline's process
+    group (SIGSTOP) and return the file if it loads as a whole checkpoint, else let the group go on. A
+    frozen pipeline cannot rewrite the checkpoint between the check and the kill, however short its epochs
+    (a size-stable-for-0.2 s check never held on a host where the tiny dataset's epochs take 70 ms)."""
+    import torch
+
     def check():
         for path in root.glob(pattern):
-            size = path.stat().st_size
-            time.sleep(0.2)
-            if path.exists() and path.stat().st_size == size > 0:
+            os.killpg(proc.pid, signal.SIGSTOP)
+            try:
+                torch.load(path, map_location="cpu", weights_only=True)
                 return path
+            except Exception:  # caught mid-write: let it finish and look again
+                os.killpg(proc.pid, signal.SIGCONT)
         return None
     return check
 
@@ -57,7 +64,8 @@ def test_sigkill_during_relation_training_leaves_no_entry_and_rerun_resumes_from
         proc = subprocess.Popen(pipeline_command(data, tmp_path / "cache", *extra), cwd=tmp_path,
                                 env=pipeline_env(tmp_path), stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        ckpt = wait_for(stable_file("relation/.partial-*/out/checkpoints/last.ckpt", tmp_path / "cache"), 300, proc, log)
+        ckpt = wait_for(frozen_with_checkpoint("relation/.partial-*/out/checkpoints/last.ckpt", tmp_path / "cache",
+                                               proc), 300, proc, log)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
