@@ -107,7 +107,8 @@ class FoldedBackbone(nn.Module):
       pixels, and a 3-channel instead of a 7-channel convolution). onnxruntime adds one convolution's
       output inside the other's blocked (NCHWc) kernel together with the ReLU, provided the graph's shape
       annotations show both have the same object dimension (``name_object_dims``). Measured, one thread,
-      the default network on the bench inputs: -10 % at batch 1, -21 % at batch 10. Where no 2x2 kernel
+      the default network on the bench inputs, two interleaved A/B runs: -6 to -10 % at batch 1, -21 to -23 %
+      at batch 10. Where no 2x2 kernel
       reproduces the border (``ResNet18``'s 7x7 / 2 stem with padding 3), the planes are concatenated to
       the crops as before: their response as a matmul added after the convolution was slower (16-18 ms vs
       14.3 ms, 133 objects; the add stays outside the blocked convolution there).
@@ -165,12 +166,13 @@ class FoldedBackbone(nn.Module):
 
 class ShippedRelation(nn.Module):
     """What the relation ONNX models compute: ``RelationGraph`` with ``FoldedBackbone`` (when the backbone
-    has a folding) and the graph part channels-first (``ChannelsFirstGraph``). ``real_only`` (the dynamic variant): the backbone, most of the cost, runs only on
-    real objects, gathered by their non-zero coordinates (``pad_graphs`` pads with all-zero boxes), and
-    padded nodes get zero features. Padding is masked out of every output that counts (no edges, not a
-    candidate: ``stages.export.parity``), so a batch of images padded to its largest costs the backbone
-    only its real objects. The static variant keeps static shapes throughout (no NonZero) for embedded
-    runtimes, so it runs the backbone on every slot."""
+    has a folding) and the graph part channels-first (``ChannelsFirstGraph``). ``real_only`` (the dynamic
+    variant): the backbone, most of the cost, runs only on real objects, gathered by their non-zero
+    coordinates (``pad_graphs`` pads with all-zero boxes), and padded nodes get zero features. Padding is
+    masked out of every output that counts (no edges, not a candidate: ``stages.export.parity``), so a
+    batch of images padded to its largest costs the backbone only its real objects. The static variant
+    keeps static shapes throughout (no NonZero) for embedded runtimes, so it runs the backbone on every
+    slot."""
 
     def __init__(self, net: nn.Module, real_only: bool):
         super().__init__()
