@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stages.relation.model import RelationNet, neighbour_softmax, row_normalised
+from stages.relation.model import RelationNet, neighbour_softmax
 
 
 def pair_geometry_channels_first(coords: torch.Tensor) -> torch.Tensor:
@@ -79,10 +79,6 @@ class ChannelsFirstGraph(nn.Module):
 
     def forward(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
         net = self.net
-        if net.needs_geometry and coords is None:
-            raise ValueError("RelationNet: edge_geometry and geometry_gate need the normalised boxes (coords)")
-        geometry = pair_geometry_channels_first(coords) if net.needs_geometry else None
-        neighbours = adj > 0
-        scale = self.attention(h, neighbours, geometry) if net.attention is not None else neighbours.to(adj.dtype)
-        weights = row_normalised(adj * scale)
+        geometry = net.geometry(coords, pairs=pair_geometry_channels_first)
+        weights, _ = net.edge_weights(h, adj, geometry, attention=self.attention)
         return net.readout(h, weights, cand, self.gate(geometry) if net.gate is not None else None)

@@ -108,10 +108,10 @@ class FoldedBackbone(nn.Module):
       output inside the other's blocked (NCHWc) kernel together with the ReLU, provided the graph's shape
       annotations show both have the same object dimension (``name_object_dims``). Measured, one thread,
       the default network on the bench inputs, two interleaved A/B runs: -6 to -10 % at batch 1, -21 to -23 %
-      at batch 10. Where no 2x2 kernel
-      reproduces the border (``ResNet18``'s 7x7 / 2 stem with padding 3), the planes are concatenated to
-      the crops as before: their response as a matmul added after the convolution was slower (16-18 ms vs
-      14.3 ms, 133 objects; the add stays outside the blocked convolution there).
+      at batch 10. Where no 2x2 kernel reproduces the border (``ResNet18``'s 7x7 / 2 stem with padding 3),
+      the planes are concatenated to the crops as before: their response as a matmul added after the
+      convolution was slower (16-18 ms vs 14.3 ms, 133 objects; the add stays outside the blocked
+      convolution there).
 
     Backbones: ``ConvFC`` and ``ResNet18``."""
 

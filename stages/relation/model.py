@@ -219,13 +219,17 @@ class RelationNet(nn.Module):
         b, n = x.shape[0], x.shape[1]
         return self.backbone(x.flatten(0, 1)).reshape(b, n, self.cfg.hidden)
 
-    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor,
-                     geometry: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def edge_weights(self, h: torch.Tensor, adj: torch.Tensor, geometry: torch.Tensor | None = None,
+                     attention=None) -> tuple[torch.Tensor, torch.Tensor]:
         """W' = adj * Scale (Eq. 5; Scale = 1 without GAT), row-normalised for the graph convolution so
         that with and without GAT a node's update is a weighted mean of its neighbours. Returns (W', Scale).
-        ``geometry`` (B, N, N, 8) = ``pair_geometry(coords)``: needed only with ``edge_geometry``."""
+        ``geometry`` = ``pair_geometry(coords)``: needed only with ``edge_geometry``. ``attention``: what
+        computes Scale with GAT (default ``self.attention``; the export passes its channels-first form)."""
         neighbours = adj > 0
-        scale = self.attention(h, neighbours, geometry) if self.attention is not None else neighbours.to(adj.dtype)
+        if self.attention is None:
+            scale = neighbours.to(adj.dtype)
+        else:
+            scale = (attention or self.attention)(h, neighbours, geometry)
         return row_normalised(adj * scale), scale
 
     @property
@@ -233,11 +237,18 @@ class RelationNet(nn.Module):
         """Whether ``relate`` needs the boxes (coords): for the geometry gate or the GAT's edge geometry."""
         return self.gate is not None or (self.attention is not None and self.cfg.edge_geometry)
 
+    def geometry(self, coords: torch.Tensor | None, pairs=pair_geometry) -> torch.Tensor | None:
+        """``pairs(coords)`` when the network uses the pair geometry (computed once for the GAT and the gate),
+        else None; a clear error when it is needed and ``coords`` is missing."""
+        if not self.needs_geometry:
+            return None
+        if coords is None:
+            raise ValueError("RelationNet: edge_geometry and geometry_gate need the normalised boxes (coords)")
+        return pairs(coords)
+
     def relate(self, h: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor, coords: torch.Tensor | None = None):
         """Graph part on backbone features h (B, N, hidden) and normalised boxes coords (B, N, 4)."""
-        if self.needs_geometry and coords is None:
-            raise ValueError("RelationNet: edge_geometry and geometry_gate need the normalised boxes (coords)")
-        geometry = pair_geometry(coords) if self.needs_geometry else None  # computed once for both users
+        geometry = self.geometry(coords)
         weights, _ = self.edge_weights(h, adj, geometry)
         return self.readout(h, weights, cand, self.gate(geometry) if self.gate is not None else None)
 
