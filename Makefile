@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup pipeline test bench lint ui clean ablations compare
+.PHONY: setup pipeline test bench lint ui clean ablations datasets compare
 
 setup: $(STAMP)
 
@@ -22,6 +22,9 @@ test: setup
 
 ablations: setup
 	for t in table1 table2 table3; do $(PY) -m pipeline experiment=$$t $(ARGS) || exit 1; done
+
+datasets: setup
+	$(PY) -m pipeline experiment=datasets $(ARGS)
 
 compare: setup
 	$(PY) -m pipeline.compare $(ARGS)

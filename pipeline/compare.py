@@ -1,10 +1,12 @@
-"""``python -m pipeline.compare`` (``make compare``): the paper's Tables 1-3 from the runs in MLflow.
+"""``python -m pipeline.compare`` (``make compare``): the paper's Tables 1-3, and DeepWORD against
+``logic_plus`` over several datasets, from the runs in MLflow.
 
 Reads the pipeline's parent runs (one per ``python -m pipeline`` invocation; every stage's metrics are on
 it, DESIGN §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
 that row's configuration, whichever command produced it (a sweep of ``make ablations`` or a single run).
-Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's)
-and logs them as artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment.
+Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's),
+``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed, the newest run of each) and logs
+them as artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment.
 
 Paper numbers: only Table 3's accuracies (logic model 92.91 / 71.83 / 79.90, DeepWORD 99.17 / 94.35 /
 95.14 on easy / hard / mixed) are transcribed; Tables 1-2's paper column says ``n/a`` rather than
@@ -204,6 +206,85 @@ def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
         {"table3": run.run_id if run else None}
 
 
+DATASETS_EXPERIMENT = "datasets"
+DATASETS_METHODS = {"deepword": "DeepWORD", "logic_plus": "logic_plus"}
+DATASETS_SUBSETS = ("hard", "mixed")
+DATASETS_METRICS = ("wheel_acc", "image_acc")
+
+
+def _datasets_column(subset: str, metric: str, method: str) -> str:
+    return f"{subset} {metric} {DATASETS_METHODS[method]}"
+
+
+def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
+    """One row per dataset (root seed) of the ``datasets`` sweep, the newest evaluated run of each: DeepWORD
+    and ``logic_plus`` on hard and mixed (ground-truth boxes), then their mean over the datasets and on how
+    many datasets DeepWORD is ahead / level / behind."""
+    needed = "eval.gt.deepword.hard.wheel_acc"
+    newest: dict[int, RunRecord] = {}
+    for run in runs:  # newest first
+        if _value(run.params.get("experiment_name")) == DATASETS_EXPERIMENT and needed in run.metrics:
+            newest.setdefault(int(_value(run.params.get("seed"))), run)
+    keys = [(s, m, method) for s in DATASETS_SUBSETS for m in DATASETS_METRICS for method in DATASETS_METHODS]
+    header = ["Dataset (seed)"] + [_datasets_column(*k) for k in keys] + ["run"]
+    rows, used = [], {}
+    for seed in sorted(newest):
+        run = newest[seed]
+        rows.append([str(seed)] + [run.metrics.get(f"eval.gt.{method}.{s}.{m}") for s, m, method in keys]
+                    + [run.name])
+        used[f"datasets.{seed}"] = run.run_id
+    if rows:
+        columns = list(zip(*[row[1:-1] for row in rows], strict=True))
+        rows.append([f"mean of {len(newest)}"]
+                    + [None if None in col else sum(col) / len(col) for col in columns] + [""])
+        tally = ["DeepWORD ahead / level / behind"]
+        for s in DATASETS_SUBSETS:
+            for m in DATASETS_METRICS:
+                ours, theirs = (1 + keys.index((s, m, method)) for method in DATASETS_METHODS)
+                pairs = [(r[ours], r[theirs]) for r in rows[:-1] if r[ours] is not None and r[theirs] is not None]
+                counts = (sum(a > b for a, b in pairs), sum(a == b for a, b in pairs), sum(a < b for a, b in pairs))
+                tally += ["/".join(map(str, counts)), ""]
+        rows.append(tally + [""])
+    notes = ["Ground-truth boxes, the default configuration on every dataset (`make datasets`: "
+             "`experiment=datasets`, one root seed per dataset: other scenes, other splits).",
+             "One quick test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",
+             "No rows: run `make datasets`." if not newest else
+             f"Newest run per seed of the `{DATASETS_EXPERIMENT}` sweep; seeds {sorted(newest)}."]
+    return Table("DeepWORD vs logic_plus over datasets", header, rows, notes), used
+
+
+def datasets_chart(table: Table, path: Path) -> None:
+    """Hard wheel_acc and image_acc per dataset, DeepWORD beside logic_plus, with their means."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    rows = [r for r in table.rows if r[0].isdigit() or r[0].startswith("mean")]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for ax, metric in zip(axes, DATASETS_METRICS, strict=True):
+        x = np.arange(len(rows))
+        low = 100.0
+        for i, (method, colour) in enumerate((("deepword", "tab:blue"), ("logic_plus", "tab:orange"))):
+            col = table.header.index(_datasets_column("hard", metric, method))
+            values = np.array([np.nan if r[col] is None else r[col] for r in rows], dtype=float)
+            low = min(low, np.nanmin(values)) if np.isfinite(values).any() else low
+            ax.bar(x + (i - 0.5) * 0.38, values, 0.38, color=colour, label=DATASETS_METHODS[method])
+            for xi, v in zip(x, values, strict=True):
+                if np.isfinite(v):
+                    ax.text(xi + (i - 0.5) * 0.38, v + 0.05, f"{v:.2f}", ha="center", fontsize=7, rotation=90)
+        ax.set_xticks(x, [r[0] for r in rows])
+        ax.set_ylim(max(0.0, np.floor(low) - 1), 100.9)
+        ax.set_title(f"hard {metric} (ground-truth boxes)")
+        ax.set_xlabel("dataset (root seed)")
+        ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def bar_chart(tables: list[Table], path: Path) -> None:
     """One panel per table: our accuracy beside the paper's where the paper's is known."""
     import matplotlib
@@ -263,6 +344,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs, "table1")
     t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2")
     t3, used3 = table3(runs)
+    td, used_datasets = datasets_table(runs)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
@@ -271,9 +353,14 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in tables))
+        + "\n".join(t.markdown() for t in [*tables, td]))
     bar_chart(tables, out_dir / "comparison.png")
-    sources = {f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
+    (out_dir / "datasets.md").write_text(td.markdown())
+    td.write_csv(out_dir / "datasets.csv")
+    if used_datasets:
+        datasets_chart(td, out_dir / "datasets.png")
+    sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
+               | used_datasets)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",
@@ -301,7 +388,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log)
     print((args.out / "comparison.md").read_text())
-    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, comparison.md, comparison.png"
+    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, comparison.md, comparison.png"
           + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)
 
 

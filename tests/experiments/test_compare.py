@@ -15,8 +15,8 @@ from pipeline.mlflow_ops import MlflowOps
 from pipeline.tracker import flatten_params
 
 
-def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str) -> str:
-    params = flatten_params(compose_config(overrides))
+def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str, params: dict | None = None) -> str:
+    params = params or flatten_params(compose_config(overrides))
     run_id = ops.create_run(name, {"profile": "smoke", "seed": "42", "git_commit": "abc"})
     ops.log(run_id, metrics=metrics, params=params)
     ops.end(run_id)
@@ -25,7 +25,7 @@ def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str) -> s
 
 def _eval(acc: float) -> dict:
     metrics = {"export.relation.ms_per_img_b1": 1.5, "relation.params": 12345.0}
-    for method, base in (("deepword", acc), ("logic", acc - 20)):
+    for method, base in (("deepword", acc), ("logic", acc - 20), ("logic_plus", acc - 1)):
         for i, s in enumerate(("easy", "hard", "mixed")):
             metrics[f"eval.gt.{method}.{s}.wheel_acc"] = base - i
             metrics[f"eval.gt.{method}.{s}.image_acc"] = base - 10 - i
@@ -52,6 +52,12 @@ def filled_store(tmp_path_factory):
     child = ops.create_run("relation", {"stage": "relation"}, parent_id=ids["resnet18"])
     ops.log(child, metrics=_eval(10.0), params=flatten_params(compose_config(["relation/backbone=resnet18"])))
     ops.end(child)
+    # the datasets sweep: seeds 43 and 44 (44 twice: the newer run counts), and a seed-45 run that stopped
+    # before evaluation (left out)
+    datasets = flatten_params(compose_config(["experiment=datasets"]))
+    for seed, acc in ((43, 90.0), (44, 50.0), (44, 97.0), (45, None)):
+        ids[f"datasets.{seed}"] = _parent(ops, [], _eval(acc) if acc else {"relation.params": 1.0},
+                                          f"smoke seed={seed}", params={**datasets, "seed": str(seed)})
     other = ops.create_run("comparison", {"kind": "comparison"})
     ops.log(other, metrics=_eval(5.0), params=flatten_params(compose_config(["relation/backbone=conv_fc"])))
     ops.end(other)
@@ -101,10 +107,30 @@ def test_tables_pick_each_rows_run_and_set_paper_numbers_beside_ours(store, tmp_
     assert client.get_run(result["run_id"]).data.tags["kind"] == "comparison"
 
 
+def test_datasets_table_has_a_row_per_seed_the_mean_and_who_leads(store, tmp_path):
+    uri, ids = store
+    out = tmp_path / "cmp"
+    result = compare(uri, "deepword", out, log=False)
+    rows = _csv(out / "datasets.csv")
+    assert list(rows) == ["43", "44", "mean of 2", "DeepWORD ahead / level / behind"]
+    header = next(csv.reader((out / "datasets.csv").open()))
+    hard_dw, hard_lp = header.index("hard wheel_acc DeepWORD"), header.index("hard wheel_acc logic_plus")
+    assert float(rows["43"][hard_dw]) == 89.0 and float(rows["43"][hard_lp]) == 88.0  # hard = base - 1
+    assert float(rows["44"][hard_dw]) == 96.0                                          # the newer seed-44 run
+    assert float(rows["mean of 2"][hard_dw]) == 92.5
+    assert rows["DeepWORD ahead / level / behind"][hard_dw] == "2/0/0"
+    assert result["sources"]["datasets.44"] == ids["datasets.44"] and "datasets.45" not in result["sources"]
+    assert "| 43 | 89.00 | 88.00 |" in (out / "datasets.md").read_text()
+    assert (out / "datasets.png").stat().st_size > 10_000
+    assert "DeepWORD vs logic_plus over datasets" in (out / "comparison.md").read_text()
+
+
 def test_profile_filter_and_missing_experiment(store, tmp_path, capsys):
     uri, _ = store
     result = compare(uri, "deepword", tmp_path / "none", profile="full", log=False)
     assert result["runs_considered"] == 0 and result["run_id"] is None
     assert "| DeepWORD | n/a | n/a | 99.17 |" in (tmp_path / "none" / "table3.md").read_text()
+    assert "No rows: run `make datasets`." in (tmp_path / "none" / "datasets.md").read_text()
+    assert not (tmp_path / "none" / "datasets.png").exists()
     with pytest.raises(SystemExit, match="no MLflow experiment 'nope'"):
         main(["--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path / "x")])

@@ -36,6 +36,17 @@ def test_experiments_sweep_the_paper_rows_with_two_parallel_jobs(table, axis, va
     assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
 
 
+def test_datasets_experiment_runs_the_default_configuration_on_five_root_seeds():
+    hydra = _hydra_cfg(["experiment=datasets"])
+    assert hydra.mode.name == "MULTIRUN" and dict(hydra.sweeper.params) == {"seed": "42,43,44,45,46"}
+    assert hydra.launcher.n_jobs == 2
+    ours, default = compose_config(["experiment=datasets"]), compose_config([])
+    assert ours["relation"]["train"].pop("threads") == 1
+    default["relation"]["train"].pop("threads")
+    assert ours["relation"] == default["relation"] and ours["eval"] == default["eval"]
+    assert ours["pipeline"]["skip"] == ["detector"]
+
+
 def test_table3_is_one_job_of_the_default_configuration():
     hydra = _hydra_cfg(["experiment=table3"])
     assert hydra.mode.name == "MULTIRUN" and not hydra.sweeper.params
