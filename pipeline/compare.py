@@ -247,7 +247,7 @@ def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
         rows.append(tally + [""])
     notes = ["Ground-truth boxes, the default configuration on every dataset (`make datasets`: "
              "`experiment=datasets`, one root seed per dataset: other scenes, other splits).",
-             "One quick test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",
+             "A quick-profile test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",
              "No rows: run `make datasets`." if not newest else
              f"Newest run per seed of the `{DATASETS_EXPERIMENT}` sweep; seeds {sorted(newest)}."]
     return Table("DeepWORD vs logic_plus over datasets", header, rows, notes), used
@@ -275,7 +275,9 @@ def datasets_chart(table: Table, path: Path) -> None:
                 if np.isfinite(v):
                     ax.text(xi + (i - 0.5) * 0.38, v + 0.05, f"{v:.2f}", ha="center", fontsize=7, rotation=90)
         ax.set_xticks(x, [r[0] for r in rows])
-        ax.set_ylim(max(0.0, np.floor(low) - 1), 100.9)
+        ax.axvline(len(rows) - 1.5, color="grey", linestyle="--", linewidth=0.8)  # datasets | their mean
+        ax.set_ylim(max(0.0, np.floor(low) - 1), 100.6)  # headroom for the value labels
+        ax.set_yticks([t for t in ax.get_yticks() if t <= 100])
         ax.set_title(f"hard {metric} (ground-truth boxes)")
         ax.set_xlabel("dataset (root seed)")
         ax.legend(loc="lower left", fontsize=8)
@@ -359,6 +361,8 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     td.write_csv(out_dir / "datasets.csv")
     if used_datasets:
         datasets_chart(td, out_dir / "datasets.png")
+    else:  # no stale chart beside a table that has no rows
+        (out_dir / "datasets.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
                | used_datasets)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
