@@ -216,10 +216,23 @@ def _datasets_column(subset: str, metric: str, method: str) -> str:
     return f"{subset} {metric} {DATASETS_METHODS[method]}"
 
 
+def paired_difference(diffs: list[float]) -> str:
+    """Mean of per-dataset differences with its standard error (sample sd / sqrt(n)), e.g. "-0.02 ± 0.18";
+    the mean alone for one dataset."""
+    if not diffs:
+        return NOT_AVAILABLE
+    mean = sum(diffs) / len(diffs)
+    if len(diffs) == 1:
+        return f"{mean:+.2f}"
+    sd = (sum((d - mean) ** 2 for d in diffs) / (len(diffs) - 1)) ** 0.5
+    return f"{mean:+.2f} ± {sd / len(diffs) ** 0.5:.2f}"
+
+
 def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
     """One row per dataset (root seed) of the ``datasets`` sweep, the newest evaluated run of each: DeepWORD
-    and ``logic_plus`` on hard and mixed (ground-truth boxes), then their mean over the datasets and on how
-    many datasets DeepWORD is ahead / level / behind."""
+    and ``logic_plus`` on hard and mixed (ground-truth boxes), then their mean over the datasets, on how
+    many datasets DeepWORD is ahead / level / behind, and the mean paired difference with its standard error
+    (whether a difference is larger than the spread from one dataset to the next)."""
     needed = "eval.gt.deepword.hard.wheel_acc"
     newest: dict[int, RunRecord] = {}
     for run in runs:  # newest first
@@ -237,14 +250,15 @@ def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
         columns = list(zip(*[row[1:-1] for row in rows], strict=True))
         rows.append([f"mean of {len(newest)}"]
                     + [None if None in col else sum(col) / len(col) for col in columns] + [""])
-        tally = ["DeepWORD ahead / level / behind"]
+        tally, difference = ["DeepWORD ahead / level / behind"], ["DeepWORD - logic_plus (± s.e.)"]
         for s in DATASETS_SUBSETS:
             for m in DATASETS_METRICS:
                 ours, theirs = (1 + keys.index((s, m, method)) for method in DATASETS_METHODS)
                 pairs = [(r[ours], r[theirs]) for r in rows[:-1] if r[ours] is not None and r[theirs] is not None]
                 counts = (sum(a > b for a, b in pairs), sum(a == b for a, b in pairs), sum(a < b for a, b in pairs))
                 tally += ["/".join(map(str, counts)), ""]
-        rows.append(tally + [""])
+                difference += [paired_difference([a - b for a, b in pairs]), ""]
+        rows += [tally + [""], difference + [""]]
     notes = ["Ground-truth boxes, the default configuration on every dataset (`make datasets`: "
              "`experiment=datasets`, one root seed per dataset: other scenes, other splits).",
              "A quick-profile test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",

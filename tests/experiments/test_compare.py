@@ -10,7 +10,7 @@ import pytest
 from pipeline_runs import compose_config
 from sqlite_store import fresh_store
 
-from pipeline.compare import PAPER_TABLE3, compare, main
+from pipeline.compare import PAPER_TABLE3, compare, main, paired_difference
 from pipeline.mlflow_ops import MlflowOps
 from pipeline.tracker import flatten_params
 
@@ -112,17 +112,24 @@ def test_datasets_table_has_a_row_per_seed_the_mean_and_who_leads(store, tmp_pat
     out = tmp_path / "cmp"
     result = compare(uri, "deepword", out, log=False)
     rows = _csv(out / "datasets.csv")
-    assert list(rows) == ["43", "44", "mean of 2", "DeepWORD ahead / level / behind"]
+    assert list(rows) == ["43", "44", "mean of 2", "DeepWORD ahead / level / behind",
+                          "DeepWORD - logic_plus (± s.e.)"]
     header = next(csv.reader((out / "datasets.csv").open()))
     hard_dw, hard_lp = header.index("hard wheel_acc DeepWORD"), header.index("hard wheel_acc logic_plus")
     assert float(rows["43"][hard_dw]) == 89.0 and float(rows["43"][hard_lp]) == 88.0  # hard = base - 1
     assert float(rows["44"][hard_dw]) == 96.0                                          # the newer seed-44 run
     assert float(rows["mean of 2"][hard_dw]) == 92.5
     assert rows["DeepWORD ahead / level / behind"][hard_dw] == "2/0/0"
+    assert rows["DeepWORD - logic_plus (± s.e.)"][hard_dw] == "+1.00 ± 0.00"  # logic_plus = DeepWORD - 1
     assert result["sources"]["datasets.44"] == ids["datasets.44"] and "datasets.45" not in result["sources"]
     assert "| 43 | 89.00 | 88.00 |" in (out / "datasets.md").read_text()
     assert (out / "datasets.png").stat().st_size > 10_000
     assert "DeepWORD vs logic_plus over datasets" in (out / "comparison.md").read_text()
+
+
+def test_paired_difference_is_the_mean_with_its_standard_error():
+    assert paired_difference([1.0, -1.0, 0.0, 2.0]) == "+0.50 ± 0.65"  # sd 1.29 / sqrt(4)
+    assert paired_difference([-0.3]) == "-0.30" and paired_difference([]) == "n/a"
 
 
 def test_profile_filter_and_missing_experiment(store, tmp_path, capsys):
