@@ -70,9 +70,14 @@ def decode_couples(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tens
 
 
 def relation_counts(pred_owner: torch.Tensor, owner: torch.Tensor, pred_couple: torch.Tensor,
-                    couple: torch.Tensor, classes: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Counts for wheel_acc, image_acc, pair precision/recall and couple F1 over every annotated wheel.
+                    couple: torch.Tensor, classes: torch.Tensor,
+                    valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """Counts for wheel_acc, image_acc, pair precision/recall and couple F1 over every annotated wheel in the
+    graph: with ``valid`` (B, N), objects masked out of it (``small_mask_px``) are not counted, since the
+    network never sees them (counted, each owned one would be a fixed error in every epoch's metric).
     ``owner``/``couple`` are the symmetric 0/1 target matrices of ``inputs.relation_targets``."""
+    if valid is not None:
+        classes = torch.where(valid.bool(), classes, torch.full_like(classes, -1))
     wv, ww = type_masks(classes)
     true_owner = owner.bool() & wv
     pred_owner = pred_owner & wv

@@ -211,7 +211,7 @@ class RelationModule(L.LightningModule):
                  sync_dist=True)
         pred_owner, pred_couple = self.decide(outputs, batch)
         self.val_counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"],
-                                               batch["classes"]))
+                                               batch["classes"], batch["valid"]))
 
     def on_validation_epoch_end(self):
         metrics = self.val_counts.compute()
@@ -234,5 +234,6 @@ def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> 
     counts = RelationCounts()
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
         pred_owner, pred_couple = module.decide(module(batch), batch)
-        counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"]))
+        counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
+                                      batch["valid"]))
     return counts.compute()

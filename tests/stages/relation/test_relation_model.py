@@ -153,6 +153,12 @@ def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     assert m["wheel_acc"] == pytest.approx(200 / 3) and m["image_acc"] == 0.0
     assert m["pair_precision"] == 100.0 and m["pair_recall"] == 50.0 and m["couple_f1"] == 100.0
     assert np.isclose(m["pair_f1"], 200 / 3)
+    # wheel 2 (owned, missed) masked out of the graph (small_mask_px): not counted, the image is right
+    valid = torch.tensor([[True, True, False, True]])
+    counts = relation_counts(pred, owner_t, couples, couple_t, classes, valid)
+    m = metrics_from_counts({k: float(v) for k, v in counts.items()})
+    assert counts["wheels"] == 2 and m["wheel_acc"] == 100.0 and m["image_acc"] == 100.0
+    assert m["pair_recall"] == 100.0 and counts["couple_tp"] + counts["couple_fn"] == 0  # couple (1, 2) is out too
 
 
 def test_pair_geometry_gives_edge_offsets_size_ratios_and_containment():
