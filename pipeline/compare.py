@@ -228,15 +228,16 @@ def paired_difference(diffs: list[float]) -> str:
     return f"{mean:+.2f} ± {sd / len(diffs) ** 0.5:.2f}"
 
 
-def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
-    """One row per dataset (root seed) of the ``datasets`` sweep, the newest evaluated run of each: DeepWORD
+def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT) -> tuple[Table, dict]:
+    """One row per dataset (root seed) of the ``datasets`` sweep (``experiment``: its ``experiment_name``, so a
+    variant swept under a name of its own is tabulated on its own), the newest evaluated run of each: DeepWORD
     and ``logic_plus`` on hard and mixed (ground-truth boxes), then their mean over the datasets, on how
     many datasets DeepWORD is ahead / level / behind, and the mean paired difference with its standard error
     (whether a difference is larger than the spread from one dataset to the next)."""
     needed = "eval.gt.deepword.hard.wheel_acc"
     newest: dict[int, RunRecord] = {}
     for run in runs:  # newest first
-        if _value(run.params.get("experiment_name")) == DATASETS_EXPERIMENT and needed in run.metrics:
+        if _value(run.params.get("experiment_name")) == experiment and needed in run.metrics:
             newest.setdefault(int(_value(run.params.get("seed"))), run)
     keys = [(s, m, method) for s in DATASETS_SUBSETS for m in DATASETS_METRICS for method in DATASETS_METHODS]
     header = ["Dataset (seed)"] + [_datasets_column(*k) for k in keys] + ["run"]
@@ -262,9 +263,10 @@ def datasets_table(runs: list[RunRecord]) -> tuple[Table, dict]:
     notes = ["Ground-truth boxes, the default configuration on every dataset (`make datasets`: "
              "`experiment=datasets`, one root seed per dataset: other scenes, other splits).",
              "A quick-profile test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",
-             "No rows: run `make datasets`." if not newest else
-             f"Newest run per seed of the `{DATASETS_EXPERIMENT}` sweep; seeds {sorted(newest)}."]
-    return Table("DeepWORD vs logic_plus over datasets", header, rows, notes), used
+             f"No rows: no evaluated run with experiment_name={experiment} (`make datasets`)." if not newest else
+             f"Newest run per seed with experiment_name={experiment}; seeds {sorted(newest)}."]
+    title = "DeepWORD vs logic_plus over datasets" + ("" if experiment == DATASETS_EXPERIMENT else f" ({experiment})")
+    return Table(title, header, rows, notes), used
 
 
 def datasets_chart(table: Table, path: Path) -> None:
@@ -348,8 +350,10 @@ def bar_chart(tables: list[Table], path: Path) -> None:
     plt.close(fig)
 
 
-def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True) -> dict:
-    """Build the three tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them."""
+def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True,
+            datasets_experiment: str = DATASETS_EXPERIMENT) -> dict:
+    """Build the tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them; the datasets
+    table from the runs whose experiment_name is ``datasets_experiment``."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=uri)
@@ -360,7 +364,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs, "table1")
     t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2")
     t3, used3 = table3(runs)
-    td, used_datasets = datasets_table(runs)
+    td, used_datasets = datasets_table(runs, datasets_experiment)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
@@ -403,8 +407,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--profile", default=None, help="only runs of this profile (default: all)")
     parser.add_argument("--out", type=Path, default=Path("outputs/comparison"))
     parser.add_argument("--no-log", action="store_true", help="do not log a comparison run to MLflow")
+    parser.add_argument("--datasets", default=DATASETS_EXPERIMENT, metavar="NAME",
+                        help="the datasets table from the runs with experiment_name=NAME (default: %(default)s)")
     args = parser.parse_args(argv)
-    result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log)
+    result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log,
+                     datasets_experiment=args.datasets)
     print((args.out / "comparison.md").read_text())
     print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, comparison.md, comparison.png"
           + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)

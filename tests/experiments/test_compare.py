@@ -58,6 +58,10 @@ def filled_store(tmp_path_factory):
     for seed, acc in ((43, 90.0), (44, 50.0), (44, 97.0), (45, None)):
         ids[f"datasets.{seed}"] = _parent(ops, [], _eval(acc) if acc else {"relation.params": 1.0},
                                           f"smoke seed={seed}", params={**datasets, "seed": str(seed)})
+    # a variant swept under its own name (`make datasets ARGS="experiment_name=rank2 ..."`): not in the
+    # datasets table, only in its own
+    ids["rank2.43"] = _parent(ops, [], _eval(80.0), "smoke seed=43 rank2",
+                              params={**datasets, "seed": "43", "experiment_name": "rank2"})
     other = ops.create_run("comparison", {"kind": "comparison"})
     ops.log(other, metrics=_eval(5.0), params=flatten_params(compose_config(["relation/backbone=conv_fc"])))
     ops.end(other)
@@ -127,6 +131,16 @@ def test_datasets_table_has_a_row_per_seed_the_mean_and_who_leads(store, tmp_pat
     assert "DeepWORD vs logic_plus over datasets" in (out / "comparison.md").read_text()
 
 
+def test_datasets_table_of_a_variant_swept_under_its_own_name(store, tmp_path):
+    uri, ids = store
+    main(["--tracking-uri", uri, "--out", str(tmp_path / "v"), "--no-log", "--datasets", "rank2"])
+    rows = _csv(tmp_path / "v" / "datasets.csv")
+    assert list(rows) == ["43", "mean of 1", "DeepWORD ahead / level / behind", "DeepWORD - logic_plus (± s.e.)"]
+    header = next(csv.reader((tmp_path / "v" / "datasets.csv").open()))
+    assert float(rows["43"][header.index("hard wheel_acc DeepWORD")]) == 79.0
+    assert "(rank2)" in (tmp_path / "v" / "datasets.md").read_text()
+
+
 def test_paired_difference_is_the_mean_with_its_standard_error():
     assert paired_difference([1.0, -1.0, 0.0, 2.0]) == "+0.50 ± 0.65"  # sd 1.29 / sqrt(4)
     assert paired_difference([-0.3]) == "-0.30" and paired_difference([]) == "n/a"
@@ -137,7 +151,7 @@ def test_profile_filter_and_missing_experiment(store, tmp_path, capsys):
     result = compare(uri, "deepword", tmp_path / "none", profile="full", log=False)
     assert result["runs_considered"] == 0 and result["run_id"] is None
     assert "| DeepWORD | n/a | n/a | 99.17 |" in (tmp_path / "none" / "table3.md").read_text()
-    assert "No rows: run `make datasets`." in (tmp_path / "none" / "datasets.md").read_text()
+    assert "No rows: no evaluated run with experiment_name=datasets" in (tmp_path / "none" / "datasets.md").read_text()
     assert not (tmp_path / "none" / "datasets.png").exists()
     with pytest.raises(SystemExit, match="no MLflow experiment 'nope'"):
         main(["--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path / "x")])
