@@ -19,6 +19,7 @@ import argparse
 import csv
 import json
 import os
+import statistics
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -210,6 +211,7 @@ DATASETS_EXPERIMENT = "datasets"
 DATASETS_METHODS = {"deepword": "DeepWORD", "logic_plus": "logic_plus"}
 DATASETS_SUBSETS = ("hard", "mixed")
 DATASETS_METRICS = ("wheel_acc", "image_acc")
+DATASETS_SUMMARY_ROWS = 2  # the datasets table ends with the ahead/level/behind and the difference rows
 
 
 def _datasets_column(subset: str, metric: str, method: str) -> str:
@@ -221,11 +223,10 @@ def paired_difference(diffs: list[float]) -> str:
     the mean alone for one dataset."""
     if not diffs:
         return NOT_AVAILABLE
-    mean = sum(diffs) / len(diffs)
+    mean = statistics.fmean(diffs)
     if len(diffs) == 1:
         return f"{mean:+.2f}"
-    sd = (sum((d - mean) ** 2 for d in diffs) / (len(diffs) - 1)) ** 0.5
-    return f"{mean:+.2f} ± {sd / len(diffs) ** 0.5:.2f}"
+    return f"{mean:+.2f} ± {statistics.stdev(diffs) / len(diffs) ** 0.5:.2f}"
 
 
 def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT) -> tuple[Table, dict]:
@@ -250,7 +251,7 @@ def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT)
     if rows:
         columns = list(zip(*[row[1:-1] for row in rows], strict=True))
         rows.append([f"mean of {len(newest)}"]
-                    + [None if None in col else sum(col) / len(col) for col in columns] + [""])
+                    + [None if None in col else statistics.fmean(col) for col in columns] + [""])
         tally, difference = ["DeepWORD ahead / level / behind"], ["DeepWORD - logic_plus (± s.e.)"]
         for s in DATASETS_SUBSETS:
             for m in DATASETS_METRICS:
@@ -259,7 +260,7 @@ def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT)
                 counts = (sum(a > b for a, b in pairs), sum(a == b for a, b in pairs), sum(a < b for a, b in pairs))
                 tally += ["/".join(map(str, counts)), ""]
                 difference += [paired_difference([a - b for a, b in pairs]), ""]
-        rows += [tally + [""], difference + [""]]
+        rows += [tally + [""], difference + [""]]  # the DATASETS_SUMMARY_ROWS rows
     notes = ["Ground-truth boxes, the default configuration on every dataset (`make datasets`: "
              "`experiment=datasets`, one root seed per dataset: other scenes, other splits).",
              "A quick-profile test set holds ~800 evaluated hard wheels: 0.12 points of hard wheel_acc is one wheel.",
@@ -267,6 +268,16 @@ def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT)
              f"Newest run per seed with experiment_name={experiment}; seeds {sorted(newest)}."]
     title = "DeepWORD vs logic_plus over datasets" + ("" if experiment == DATASETS_EXPERIMENT else f" ({experiment})")
     return Table(title, header, rows, notes), used
+
+
+def save_figure(fig, path: Path) -> None:
+    """Lay out, write as PNG (creating the folder) and close a matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def datasets_chart(table: Table, path: Path) -> None:
@@ -277,7 +288,7 @@ def datasets_chart(table: Table, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    rows = [r for r in table.rows if r[0].isdigit() or r[0].startswith("mean")]
+    rows = table.rows[:-DATASETS_SUMMARY_ROWS]  # the datasets and their mean
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     for ax, metric in zip(axes, DATASETS_METRICS, strict=True):
         x = np.arange(len(rows))
@@ -297,10 +308,7 @@ def datasets_chart(table: Table, path: Path) -> None:
         ax.set_title(f"hard {metric} (ground-truth boxes)")
         ax.set_xlabel("dataset (root seed)")
         ax.legend(loc="lower left", fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def bar_chart(tables: list[Table], path: Path) -> None:
@@ -344,10 +352,7 @@ def bar_chart(tables: list[Table], path: Path) -> None:
     ax.set_ylim(0, 118)
     ax.set_title("Table 3: wheel_acc (ours) vs accuracy (paper)")
     ax.legend(loc="upper left", fontsize=8, ncol=2)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True,
