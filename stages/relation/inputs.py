@@ -35,6 +35,7 @@ class InputConfig:
 
     input_size: int = 56
     margin: float = 0.2
+    min_crop_px: float = 0.0
     max_objects: int = 32
     small_mask_px: float = 0.0
     adjacency: str = "prior"
@@ -49,24 +50,28 @@ class InputConfig:
             raise ValueError(f"relation.max_objects must be >= 1, got {self.max_objects}")
         if self.margin < 0:
             raise ValueError(f"relation.margin must be >= 0, got {self.margin}")
+        if self.min_crop_px < 0:
+            raise ValueError(f"relation.min_crop_px must be >= 0, got {self.min_crop_px}")
 
     @classmethod
     def from_cfg(cls, rel) -> InputConfig:
         return cls(input_size=int(rel.backbone.input_size), margin=float(rel.margin),
-                   max_objects=int(rel.max_objects), small_mask_px=float(rel.small_mask_px),
+                   min_crop_px=float(rel.get("min_crop_px", 0.0)), max_objects=int(rel.max_objects), small_mask_px=float(rel.small_mask_px),
                    adjacency=str(rel.adjacency), min_prior=float(rel.min_prior))
 
 
 # --- crops ------------------------------------------------------------------------------------------
 
-def crop_object(rgb: np.ndarray, box: Sequence[float], size: int, margin: float) -> np.ndarray:
-    """The box grown by ``margin`` x its width/height on each side, resized to size x size (uint8 RGB).
-    Parts of the grown box outside the image stay black, so the box keeps its place in the crop."""
+def crop_object(rgb: np.ndarray, box: Sequence[float], size: int, margin: float, min_px: float = 0.0) -> np.ndarray:
+    """The box grown by ``margin`` x its width/height on each side, then about its centre to at least
+    ``min_px`` pixels wide and high, resized to size x size (uint8 RGB). Parts of the grown box outside the
+    image stay black, so the box keeps its place in the crop."""
     import cv2  # deferred: OpenCV loads only when crops are built
 
     height, width = rgb.shape[:2]
     x1, y1, x2, y2 = (float(v) for v in box[:4])
     mx, my = margin * (x2 - x1), margin * (y2 - y1)
+    mx, my = max(mx, (min_px - (x2 - x1)) / 2), max(my, (min_px - (y2 - y1)) / 2)
     gx1, gy1, gx2, gy2 = x1 - mx, y1 - my, x2 + mx, y2 + my
     sx, sy = size / (gx2 - gx1), size / (gy2 - gy1)
     cx1, cy1 = max(math.floor(gx1), 0), max(math.floor(gy1), 0)
@@ -89,11 +94,11 @@ def _clamp_round(v: float, size: int) -> int:
     return int(min(max(round(v), 0), size))
 
 
-def crop_objects(rgb: np.ndarray, xyxy: np.ndarray, size: int, margin: float) -> np.ndarray:
+def crop_objects(rgb: np.ndarray, xyxy: np.ndarray, size: int, margin: float, min_px: float = 0.0) -> np.ndarray:
     """Every box's crop: (N, 4) boxes -> (N, 3, size, size) uint8, channels first."""
     crops = np.zeros((len(xyxy), 3, size, size), dtype=np.uint8)
     for i, box in enumerate(xyxy):
-        crops[i] = crop_object(rgb, box, size, margin).transpose(2, 0, 1)
+        crops[i] = crop_object(rgb, box, size, margin, min_px).transpose(2, 0, 1)
     return crops
 
 
@@ -203,7 +208,7 @@ def build_graph(rec: Record, rgb: np.ndarray, cfg: InputConfig, wheel_vehicle: P
     valid = node_validity(rec.xyxy, cfg.small_mask_px)
     priors = pair_priors(rec.xyxy, classes, rec.width, rec.height, wheel_vehicle, wheel_wheel)
     cand = candidate_pairs(classes, valid, priors, cfg.min_prior)
-    return ImageGraph(crops=crop_objects(rgb, rec.xyxy, cfg.input_size, cfg.margin),
+    return ImageGraph(crops=crop_objects(rgb, rec.xyxy, cfg.input_size, cfg.margin, cfg.min_crop_px),
                       coords=normalised_boxes(rec.xyxy, rec.width, rec.height), classes=classes, valid=valid,
                       adj=adjacency(priors, cand, valid, cfg.adjacency).astype(np.float32), cand=cand)
 

@@ -36,9 +36,9 @@ def test_experiments_sweep_the_paper_rows_with_two_parallel_jobs(table, axis, va
     assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
 
 
-def test_datasets_experiment_runs_the_default_configuration_on_five_root_seeds():
+def test_datasets_experiment_runs_the_default_configuration_on_ten_root_seeds():
     hydra = _hydra_cfg(["experiment=datasets"])
-    assert hydra.mode.name == "MULTIRUN" and dict(hydra.sweeper.params) == {"seed": "42,43,44,45,46"}
+    assert hydra.mode.name == "MULTIRUN" and dict(hydra.sweeper.params) == {"seed": "42,43,44,45,46,47,48,49,50,51"}
     assert hydra.launcher.n_jobs == 2
     ours, default = compose_config(["experiment=datasets"]), compose_config([])
     assert ours["relation"]["train"].pop("threads") == 1

@@ -27,6 +27,7 @@ ABLATIONS = {
     "no_containment": {"relation.decode.min_containment": 0.0},
     "no_geometry_gate": {"relation.model.geometry_gate": False},
     "no_rank": {"relation.loss.rank_weight": 0.0},
+    "no_min_crop": {"relation.min_crop_px": 0},
 }
 
 

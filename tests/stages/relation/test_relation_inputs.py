@@ -31,6 +31,20 @@ def test_crop_keeps_box_place_and_blacks_out_outside_image():
     assert (crop[10:20, -4:] == 50).all()          # right margin reaches the darker half (x >= 50)
 
 
+def test_min_crop_px_grows_small_boxes_about_their_centre_and_leaves_large_ones():
+    rgb = np.zeros((100, 100, 3), dtype=np.uint8)
+    rgb[40:60, 40:60] = 100   # context around the small box
+    rgb[48:52, 48:52] = 255   # the 4 x 4 box
+    small = [48, 48, 52, 52]
+    assert (crop_object(rgb, small, size=20, margin=0.0) == 255).all()     # the box alone
+    grown = crop_object(rgb, small, size=20, margin=0.0, min_px=20)       # 20 x 20 about (50, 50)
+    assert (grown[8:12, 8:12] == 255).all() and (grown[:6] == 100).all() and (grown[:, -6:] == 100).all()
+    large = [10, 20, 90, 80]
+    assert np.array_equal(crop_object(rgb, large, 32, 0.2, min_px=20), crop_object(rgb, large, 32, 0.2))
+    with pytest.raises(ValueError, match="min_crop_px"):
+        InputConfig(min_crop_px=-1)
+
+
 def test_node_tensor_is_rgb_in_unit_range_plus_four_constant_planes():
     crops = torch.full((2, 3, 8, 8), 255, dtype=torch.uint8)
     coords = torch.tensor([[0.1, 0.2, 0.3, 0.4], [0.5, 0.6, 0.7, 0.8]])
