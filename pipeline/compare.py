@@ -301,7 +301,7 @@ def datasets_chart(table: Table, path: Path) -> None:
             for xi, v in zip(x, values, strict=True):
                 if np.isfinite(v):
                     ax.text(xi + (i - 0.5) * 0.38, v + 0.05, f"{v:.2f}", ha="center", fontsize=7, rotation=90)
-        ax.set_xticks(x, [r[0] for r in rows])
+        ax.set_xticks(x, [r[0].replace(" of ", "\nof ") for r in rows])  # "mean\nof 10" fits one bar's width
         ax.axvline(len(rows) - 1.5, color="grey", linestyle="--", linewidth=0.8)  # datasets | their mean
         ax.set_ylim(max(0.0, np.floor(low) - 1), 100.6)  # headroom for the value labels
         ax.set_yticks([t for t in ax.get_yticks() if t <= 100])
