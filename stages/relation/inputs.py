@@ -56,8 +56,9 @@ class InputConfig:
     @classmethod
     def from_cfg(cls, rel) -> InputConfig:
         return cls(input_size=int(rel.backbone.input_size), margin=float(rel.margin),
-                   min_crop_px=float(rel.get("min_crop_px", 0.0)), max_objects=int(rel.max_objects), small_mask_px=float(rel.small_mask_px),
-                   adjacency=str(rel.adjacency), min_prior=float(rel.min_prior))
+                   min_crop_px=float(rel.min_crop_px), max_objects=int(rel.max_objects),
+                   small_mask_px=float(rel.small_mask_px), adjacency=str(rel.adjacency),
+                   min_prior=float(rel.min_prior))
 
 
 # --- crops ------------------------------------------------------------------------------------------
