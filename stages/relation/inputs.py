@@ -71,8 +71,8 @@ def crop_object(rgb: np.ndarray, box: Sequence[float], size: int, margin: float,
 
     height, width = rgb.shape[:2]
     x1, y1, x2, y2 = (float(v) for v in box[:4])
-    mx, my = margin * (x2 - x1), margin * (y2 - y1)
-    mx, my = max(mx, (min_px - (x2 - x1)) / 2), max(my, (min_px - (y2 - y1)) / 2)
+    mx = max(margin * (x2 - x1), (min_px - (x2 - x1)) / 2)
+    my = max(margin * (y2 - y1), (min_px - (y2 - y1)) / 2)
     gx1, gy1, gx2, gy2 = x1 - mx, y1 - my, x2 + mx, y2 + my
     sx, sy = size / (gx2 - gx1), size / (gy2 - gy1)
     cx1, cy1 = max(math.floor(gx1), 0), max(math.floor(gy1), 0)

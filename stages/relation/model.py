@@ -229,7 +229,7 @@ class RelationNet(nn.Module):
         if self.attention is None:
             scale = neighbours.to(adj.dtype)
         else:
-            scale = (attention or self.attention)(h, neighbours, geometry)
+            scale = (self.attention if attention is None else attention)(h, neighbours, geometry)
         return row_normalised(adj * scale), scale
 
     @property
