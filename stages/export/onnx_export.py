@@ -6,7 +6,7 @@ tracing captures them exactly; it needs no ``onnxscript`` dependency and writes 
 that older embedded runtimes read (opset 17). The exported graphs are checked by the parity tests.
 
 What is exported:
-- relation: ``RelationGraph`` = the node tensor of DESIGN §6 (uint8 crops -> [0, 1] RGB + four coordinate
+- relation: ``RelationGraph`` = the node tensor of docs/design.md §6 (uint8 crops -> [0, 1] RGB + four coordinate
   planes, ``stages.relation.inputs.node_tensor``) + ``RelationNet``: the trained module, the PyTorch
   reference of parity and latency. What is exported is ``ShippedRelation``, the same function rewritten
   for inference speed (``FoldedBackbone``: the /255 and the first BatchNorm folded into the first
