@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from stages.evaluate.metrics import METRICS
+from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
 # The paper's Table 3 (Wu et al.): it does not say whether per wheel or per image, so it is printed

@@ -81,7 +81,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict) -
 
 
 def wheel_acc_by_subset(ds, preds: dict, min_box_px: float) -> dict[str, float]:
-    from stages.evaluate.metrics import score_records
+    from stages.metrics import score_records
 
     return {s: score_records(ds.subset(s), preds, min_box_px).percentages()["wheel_acc"] for s in SUBSETS}
 

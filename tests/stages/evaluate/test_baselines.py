@@ -23,7 +23,7 @@ from stages.evaluate.baselines import (
     owner_objective,
     prepare_train,
 )
-from stages.evaluate.metrics import score_records
+from stages.metrics import score_records
 from stages.priors.mixture import Mixture1D, Priors, make_pair_prior
 from stages.word_format import Record
 

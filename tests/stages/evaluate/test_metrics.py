@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stages.evaluate.metrics import Counts, match_boxes, score_image, score_records
+from stages.metrics import Counts, match_boxes, score_image, score_records
 from stages.word_format import Record
 
 
