@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stages.geometry import box_centres, containment, pairwise_distance_ratio, pairwise_iou
+from stages.metrics import Counts, count_relations
 from stages.word_format import VEHICLE, WHEEL, Record
 
 MAX_WHEELS_PER_VEHICLE = 4
@@ -296,28 +297,31 @@ def prepare_train(records: list[Record], min_box_px: float, max_images: int, see
     return out
 
 
+def train_counts(im: TrainImage, owners: np.ndarray | None = None,
+                 couples: list[tuple[int, int]] | None = None) -> Counts:
+    """§7 counts (``stages.metrics``) of one train image's predicted owner indices and couples (wheel index
+    pairs), on its ground-truth boxes and its evaluated wheels."""
+    rec = im.obj.rec
+    wheel_ids, vehicle_ids = rec.box_ids[im.obj.wheels], rec.box_ids[im.obj.vehicles]
+    evaluated = {int(b) for b in wheel_ids[im.evaluated]}
+    claimed = [] if owners is None else [(int(vehicle_ids[o]), int(w)) for w, o in zip(wheel_ids, owners, strict=True)
+                                         if o >= 0]
+    claimed_c = [(int(wheel_ids[a]), int(wheel_ids[b])) for a, b in couples or []]
+    return count_relations(evaluated, {int(b) for b in wheel_ids} - evaluated, [(v, w) for v, w, _ in rec.relations],
+                           rec.wheel_pairs, claimed, claimed_c)
+
+
 def owner_objective(images: list[TrainImage], owners: list[np.ndarray]) -> float:
     """wheel_acc + image_acc (percent) of predicted owner indices: the fitting objective."""
-    wheels = correct = good_images = 0
-    for im, own in zip(images, owners, strict=True):
-        ok = (own == im.true_owner)[im.evaluated]
-        wheels += len(ok)
-        correct += int(ok.sum())
-        good_images += bool(ok.all())
-    return 100.0 * correct / max(wheels, 1) + 100.0 * good_images / max(len(images), 1)
+    total = sum((train_counts(im, own) for im, own in zip(images, owners, strict=True)), Counts())
+    metrics = total.percentages()
+    return metrics["wheel_acc"] + metrics["image_acc"]
 
 
 def couple_f1(images: list[TrainImage], couples: list[list[tuple[int, int]]]) -> float:
     """Couple F1 (percent) of couples given as wheel index pairs, against the train truth."""
-    tp = fp = fn = 0
-    for im, pred in zip(images, couples, strict=True):
-        ids = im.obj.rec.box_ids[im.obj.wheels]
-        truth = {frozenset(p) for p in im.obj.rec.wheel_pairs}
-        got = {frozenset((int(ids[i]), int(ids[j]))) for i, j in pred}
-        tp += len(truth & got)
-        fp += len(got - truth)
-        fn += len(truth - got)
-    return 200.0 * tp / max(2 * tp + fp + fn, 1)
+    total = sum((train_counts(im, couples=c) for im, c in zip(images, couples, strict=True)), Counts())
+    return total.percentages()["couple_f1"]
 
 
 def fit_couple_rule(images: list[TrainImage]) -> CoupleRule:
