@@ -7,14 +7,14 @@ import csv
 import shutil
 
 import pytest
-from pipeline_runs import compose_config
-from sqlite_store import fresh_store
 
 from pipeline.mlflow_ops import MlflowOps
 from pipeline.tables import paired_difference
 from pipeline.tracker import flatten_params
 from stages.paper import TABLE3_ACCURACY as PAPER_TABLE3
 from stages.tables.compare import compare, main
+from tests.experiments.pipeline_runs import compose_config
+from tests.sqlite_store import fresh_store
 
 
 def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str, params: dict | None = None) -> str:

@@ -9,7 +9,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-from pipeline_runs import MlflowServer
+
+from tests.experiments.pipeline_runs import MlflowServer
 
 pytestmark = pytest.mark.slow
 

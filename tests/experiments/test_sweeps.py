@@ -8,12 +8,12 @@ import json
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from pipeline_runs import CONF, compose_config, run_pipeline
 
 from pipeline.runs import RunRecord
 from pipeline.sweep import format_table, read_jobs, stage_totals, summarize
 from pipeline.tracker import flatten_params
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, RowMatcher
+from tests.experiments.pipeline_runs import CONF, compose_config, run_pipeline
 
 
 def _hydra_cfg(overrides: list[str]):

@@ -3,9 +3,9 @@
 import cv2
 import numpy as np
 import pytest
-from data_helpers import synword_cfg
 
 from stages.data.camera import camera_from_config
+from tests.stages.data.data_helpers import synword_cfg
 
 
 @pytest.fixture(params=["front", "left", "right", "rear"])
