@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from stages.format_3d import check_optional_3d
+
 VEHICLE = 0
 WHEEL = 1
 CAMERAS = ("front", "left", "right", "rear")
@@ -210,6 +212,7 @@ def parse_record(obj, file: str, line: int | None, root: Path | None = None, che
             fail(fld, "a wheel cannot pair with itself")
         pairs.append((a, b))
 
+    check_optional_3d(obj, cls_of, width, height, fail)  # calibration, objects_3d: only when present
     known = set(REQUIRED_KEYS) | {"scene", "wheel_pairs"}
     extra = {k: v for k, v in obj.items() if k not in known}
     scene = obj.get("scene", "")
