@@ -165,6 +165,6 @@ def record_objects_3d(record, needed_by: str) -> tuple[dict[int, Box3D], dict[in
         if "contact" in entry:
             wheels[int(key)] = (float(entry["contact"][0]), float(entry["contact"][1]))
         else:
-            (x, y, z), (ln, wd, ht) = entry["center"], entry["size"]
+            (x, y, _), (ln, wd, ht) = entry["center"], entry["size"]
             vehicles[int(key)] = Box3D(float(x), float(y), float(ln), float(wd), float(entry["yaw"]), float(ht))
     return vehicles, wheels
