@@ -6,10 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from stages.bev.footprint import FootprintPrior, estimate_record, fit_prior, footprints_from_contacts, fuse_frame
+from stages.bev.footprint import (
+    FootprintPrior,
+    estimate_record,
+    fit_prior,
+    footprints_from_contacts,
+    fuse_frame,
+)
 from stages.bev.metrics import TrueVehicle, match_frame, summarise
 from stages.bev.stage import check_3d
-from stages.cameras import mount_rotation
 from stages.data.camera import nominal_camera
 from stages.format_3d import Box3D, Missing3DError, record_camera, record_objects_3d
 from stages.word_format import Record, read_records, write_records
