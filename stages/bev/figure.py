@@ -36,6 +36,9 @@ def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, r
         lo, hi = rig_xy.min(axis=0), rig_xy.max(axis=0)
         ego = np.array([[hi[0], hi[1]], [hi[0], lo[1]], [lo[0], lo[1]], [lo[0], hi[1]]])
         cv2.fillPoly(img, [np.round(px(ego) * 16).astype(np.int32)], EGO_RGB, cv2.LINE_AA, shift=4)
+    elif len(rig_xy) == 1:  # a single camera: its position
+        c = px(rig_xy)[0]
+        cv2.circle(img, (int(c[0]), int(c[1])), 5, EGO_RGB, -1, cv2.LINE_AA)
     for b in truth:
         poly(b.corners(), TRUE_RGB, 2)
     for b in estimates:

@@ -24,7 +24,7 @@ one vehicle (seen by two cameras); its footprint is the mean of its strongest es
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -48,6 +48,7 @@ class FootprintPrior:
     track_inset: float        # median distance from a wheel's contact point in to the body side
     contact_shift: float      # median distance the back-projected wheel point lies nearer the camera than the contact
     box_shift: float          # median distance from the back-projected vehicle box bottom centre on to the centre
+    height: float = 1.5       # median vehicle height (footprints are boxes of this height)
 
     def length_for(self, wheelbase: float) -> float:
         return self.length_slope * wheelbase + self.length_offset
@@ -57,7 +58,7 @@ class FootprintPrior:
 
     @classmethod
     def from_json(cls, d: dict) -> FootprintPrior:
-        return cls(**{k: float(d[k]) for k in cls.__dataclass_fields__})
+        return cls(**{k: float(d[k]) for k in cls.__dataclass_fields__ if k in d})
 
 
 @dataclass(frozen=True)
@@ -238,6 +239,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
         if box is None:
             box, evidence = box_bottom_estimate(cam, vbox, prior), "box"
         if box is not None:
+            box = replace(box, height=prior.height)
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image))
     return out
 
@@ -271,7 +273,7 @@ def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, 
 def fit_prior(samples) -> FootprintPrior:
     """Fit ``FootprintPrior`` from (record, camera, vehicles {box_id: Box3D}, wheels {box_id: (x, y)})
     tuples of train images with ground-truth boxes and relations."""
-    widths, lengths, bases, insets, shifts, box_shifts = [], [], [], [], [], []
+    widths, lengths, heights, bases, insets, shifts, box_shifts = [], [], [], [], [], [], []
     seen_vehicles = set()
     for rec, cam, vehicles, wheels in samples:
         owner = rec.owner_of()
@@ -283,6 +285,7 @@ def fit_prior(samples) -> FootprintPrior:
             seen_vehicles.add(key)
             widths.append(v.width)
             lengths.append(v.length)
+            heights.append(v.height)
             u = np.array([math.cos(v.yaw), math.sin(v.yaw)])
             n = np.array([-u[1], u[0]])
             for w, owner_id in owner.items():
@@ -315,4 +318,5 @@ def fit_prior(samples) -> FootprintPrior:
                           wheelbase=float(np.median(wb[:, 0])), length_slope=float(slope), length_offset=float(offset),
                           track_inset=float(np.median(insets)) if insets else 0.0,
                           contact_shift=float(np.median(shifts)) if shifts else 0.0,
-                          box_shift=float(np.median(box_shifts)) if box_shifts else 0.0)
+                          box_shift=float(np.median(box_shifts)) if box_shifts else 0.0,
+                          height=float(np.median(heights)))
