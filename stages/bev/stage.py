@@ -146,7 +146,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg)
     for name in ("bev_report.md", "bev.json", PRIOR_FILE):
         shutil.copy(out_dir / name, artifacts / name)
-    print(f"bev: {len(figures)} top-view figures in {artifacts} ({', '.join(p.name for p in figures[:3])}, ...)")
+    print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
     return flatten(results)
 
 
