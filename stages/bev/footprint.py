@@ -9,7 +9,8 @@ calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Pe
   line gives the axis, the wheelbase the length (``FootprintPrior.length_for``), the width prior puts the
   centre behind the side, away from the camera;
 - ``axle``: two wheels of one axle: the axis is perpendicular, the centre half a wheelbase further away;
-- ``wheel``: one wheel: the axis from the vehicle box's bottom edge, the centre from the wheel;
+- ``wheel``: one wheel: the centre where the wheel's offset circle meets the ``box_bottom`` guess best,
+  the axis that puts the body beyond the wheel;
 - ``box``: no wheel: the ``box_bottom`` estimate.
 
 ``box_bottom`` (no relation at all) back-projects the bottom centre of the vehicle box and pushes it away
@@ -173,16 +174,31 @@ def _axle_box(cam: Camera, a: np.ndarray, b: np.ndarray, prior: FootprintPrior) 
 
 
 def _wheel_box(cam: Camera, c: np.ndarray, vbox: np.ndarray, prior: FootprintPrior) -> Box3D | None:
-    """Footprint from one contact: the axis from the vehicle box's bottom edge, the centre half a wheelbase
-    along it (towards the box bottom's ground point) and behind the side."""
-    yaw = _edge_axis(cam, vbox[:4], prior)
-    bottom, ok = box_bottom_points(cam, vbox[None, :4])
-    if yaw is None or not ok[0]:
+    """Footprint from one contact: the centre lies half a wheelbase along and (width/2 - track inset) across
+    from it, on a circle around the contact; the point of that circle nearest the ``box_bottom`` centre.
+    Of the two axes through that centre, the one whose side line puts the body beyond the wheel, away from
+    the camera (the wheel is seen, so it is on the near side)."""
+    guess = box_bottom_estimate(cam, vbox, prior)
+    if guess is None:
         return None
-    u = np.array([math.cos(yaw), math.sin(yaw)])
-    if np.dot(u, bottom[0] - c) < 0:
-        u = -u
-    return _side_box(cam, c - u * prior.wheelbase / 2, c + u * prior.wheelbase / 2, prior)
+    half_wb, lateral = prior.wheelbase / 2, prior.width / 2 - prior.track_inset
+    d = np.array([guess.x, guess.y]) - c
+    if np.linalg.norm(d) < 1e-6:
+        d = _away(cam, c)[0]
+    d = d / np.linalg.norm(d)
+    centre = c + math.hypot(half_wb, lateral) * d
+    phi = math.atan2(lateral, half_wb)
+    away = _away(cam, c)[0]
+    best = None
+    for sign in (1.0, -1.0):
+        yaw = _axis_angle(d) - sign * phi
+        n = np.array([-math.sin(yaw), math.cos(yaw)])
+        if np.dot(n, d) < 0:
+            n = -n
+        score = float(np.dot(n, away))
+        if best is None or score > best[0]:
+            best = (score, yaw)
+    return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, best[1])
 
 
 def _mean_box(boxes: list[Box3D]) -> Box3D:
