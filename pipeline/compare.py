@@ -2,10 +2,11 @@
 ``logic_plus`` over several datasets, from the runs in MLflow.
 
 Reads the pipeline's parent runs (one per ``python -m pipeline`` invocation; every stage's metrics are on
-it, DESIGN §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
+it, docs/design.md §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
 that row's configuration, whichever command produced it (a sweep of ``make ablations`` or a single run).
 Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's),
-``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed, the newest run of each) and logs
+``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed, the newest run of each),
+``bev.{md,csv}`` (bird's-eye-view footprints per method, docs/bev.md, of the newest run with them) and logs
 them as artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment.
 
 Paper numbers: only Table 3's accuracies (logic model 92.91 / 71.83 / 79.90, DeepWORD 99.17 / 94.35 /
@@ -132,7 +133,7 @@ def load_runs(client, experiment_id: str, profile: str | None) -> list[RunRecord
 
 def pick(runs: list[RunRecord], row: Row, needed: str, experiment: str | None = None) -> RunRecord | None:
     """The newest run of ``row``'s configuration that has the metric ``needed``; with ``experiment``, a run
-    of that sweep first (its rows share one training budget, DESIGN §8), else any run of the row."""
+    of that sweep first (its rows share one training budget, docs/design.md §8), else any run of the row."""
     found = [run for run in runs if needed in run.metrics and matches(row, run.params)]  # newest first
     own = [run for run in found if _value(run.params.get("experiment_name")) == experiment]
     return (own or found or [None])[0]
@@ -177,7 +178,7 @@ def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], exp
         out.append([row.label, None if params is None else int(params), m.get(LATENCY_METRIC), None,
                     m.get(ACC_METRIC), m.get(IMAGE_ACC_METRIC), None, run.name if run else NOT_AVAILABLE])
         used[row.label] = run.run_id if run else None
-    notes = ["Ours: ground-truth boxes, mixed test subset (DESIGN §7); latency: onnxruntime, batch 1, "
+    notes = ["Ours: ground-truth boxes, mixed test subset (docs/design.md §7); latency: onnxruntime, batch 1, "
              "this machine.",
              "Paper column n/a: the paper's figures for this table are not transcribed here (unverified).",
              "A row shows n/a when no finished run of its configuration with evaluation metrics is in "
@@ -205,6 +206,33 @@ def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
              "The paper does not say whether its accuracy is per wheel or per image: both are shown."]
     return Table("Table 3: logic model vs DeepWORD on easy / hard / mixed", header, rows, notes), \
         {"table3": run.run_id if run else None}
+
+
+BEV_METHODS = {"box_bottom": "box bottom (no relation)", "logic": "Logic model", "logic_plus": "Logic+ (ours)",
+               "deepword": "DeepWORD"}
+BEV_METRICS = ("center_err_m", "heading_err_deg", "bev_iou", "recall")
+BEV_POPULATIONS = {"paired.": "two same-side wheels", "": "all"}
+
+
+def bev_table(runs: list[RunRecord]) -> tuple[Table, dict]:
+    """Footprints in bird's-eye view (docs/bev.md) of the newest run with bev metrics: per box source and
+    method, medians over the vehicles within range that show two same-side wheels (the targets' population)
+    and over all vehicles within range."""
+    needed = "bev.gt.deepword.paired.center_err_m"
+    run = next((r for r in runs if needed in r.metrics), None)  # runs: newest first
+    m = run.metrics if run else {}
+    header = ["Boxes", "Method"] + [f"{k} ({label})" for label in BEV_POPULATIONS.values() for k in BEV_METRICS]
+    rows = []
+    for boxes in ("gt", "detected"):
+        for method, label in BEV_METHODS.items():
+            cells = [m.get(f"bev.{boxes}.{method}.{pop}{k}") for pop in BEV_POPULATIONS for k in BEV_METRICS]
+            if any(c is not None for c in cells):
+                rows.append([boxes, label, *cells])
+    notes = [f"Run {run.name!r} ({run.run_id}); vehicles within the run's bev.max_range_m of the ego's rear axle; "
+             "errors in m and degrees (heading modulo 180), recall in %." if run else
+             "No finished run with bev metrics: run `make pipeline` on a dataset with calibration."]
+    return Table("Bird's-eye view: footprints from wheel contacts", header, rows, notes), \
+        {"bev": run.run_id if run else None}
 
 
 DATASETS_EXPERIMENT = "datasets"
@@ -370,6 +398,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2")
     t3, used3 = table3(runs)
     td, used_datasets = datasets_table(runs, datasets_experiment)
+    tb, used_bev = bev_table(runs)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
@@ -378,7 +407,9 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in [*tables, td]))
+        + "\n".join(t.markdown() for t in [*tables, td, tb]))
+    (out_dir / "bev.md").write_text(tb.markdown())
+    tb.write_csv(out_dir / "bev.csv")
     bar_chart(tables, out_dir / "comparison.png")
     (out_dir / "datasets.md").write_text(td.markdown())
     td.write_csv(out_dir / "datasets.csv")
@@ -387,7 +418,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     else:  # no stale chart beside a table that has no rows
         (out_dir / "datasets.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
-               | used_datasets)
+               | used_datasets | used_bev)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",

@@ -1,4 +1,4 @@
-"""The optional 3D keys of a WORD-style record (DESIGN §4): ``calibration`` and ``objects_3d``.
+"""The optional 3D keys of a WORD-style record (docs/design.md §4): ``calibration`` and ``objects_3d``.
 
 The reader (``stages.word_format.parse_record``) calls ``check_optional_3d`` on every record, so a bad
 calibration or 3D box is reported with file, line and field like any other problem; a record without
@@ -23,7 +23,7 @@ import numpy as np
 
 from stages.cameras import KANNALA_BRANDT_FIELDS, MODELS, RADIAL_POLY_FIELDS, Camera, camera_from_calibration
 
-VEHICLE, WHEEL = 0, 1  # class ids of DESIGN §4 (stages.word_format imports this module)
+VEHICLE, WHEEL = 0, 1  # class ids of docs/design.md §4 (stages.word_format imports this module)
 
 
 def _number(x) -> bool:
@@ -125,7 +125,7 @@ def record_camera(record, needed_by: str) -> Camera:
     cal = record.extra.get("calibration")
     if cal is None:
         raise Missing3DError(f"{_where(record)}: field 'calibration': missing ({record.image}); {needed_by} needs "
-                             "each image's camera calibration (DESIGN §4, docs/bev.md)")
+                             "each image's camera calibration (docs/design.md §4, docs/bev.md)")
     return camera_from_calibration(cal, name=record.camera)
 
 
@@ -159,7 +159,7 @@ def record_objects_3d(record, needed_by: str) -> tuple[dict[int, Box3D], dict[in
     objs = record.extra.get("objects_3d")
     if objs is None:
         raise Missing3DError(f"{_where(record)}: field 'objects_3d': missing ({record.image}); {needed_by} needs "
-                             "the 3D truth of the vehicles and wheels (DESIGN §4, docs/bev.md)")
+                             "the 3D truth of the vehicles and wheels (docs/design.md §4, docs/bev.md)")
     vehicles, wheels = {}, {}
     for key, entry in objs.items():
         if "contact" in entry:

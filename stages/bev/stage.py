@@ -3,7 +3,7 @@ box sources the evaluate stage scored, fused over each frame's cameras and score
 
 It reads the relations evaluate predicted (``predictions/<boxes>_<method>.jsonl``: the shipped ONNX models
 and the fitted baselines, exactly as evaluate scores them) and adds ``box_bottom`` (no relation). Needs
-``calibration`` and ``objects_3d`` in the dataset (DESIGN §4): a dataset without any is reported as such
+``calibration`` and ``objects_3d`` in the dataset (docs/design.md §4): a dataset without any is reported as such
 (no metrics); a dataset where some records lack them is an error naming the first one's file and line.
 
 Outputs: ``bev.json`` (every number), ``bev_report.md``, ``footprint_prior.json`` (the shape prior fitted on
@@ -108,7 +108,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         first = ds.records[0]
         file, line = first.source or (first.image, None)
         note = (f"no BEV results: the dataset has no `calibration` / `objects_3d` keys (e.g. {file}:{line}); "
-                "the bev stage needs both (DESIGN §4, docs/bev.md)")
+                "the bev stage needs both (docs/design.md §4, docs/bev.md)")
         print(f"bev: {note}")
         (out_dir / "bev_report.md").write_text(f"# Bird's-eye view\n\n{note}\n")
         shutil.copy(out_dir / "bev_report.md", artifacts / "bev_report.md")

@@ -117,7 +117,7 @@ class FrameGenerator:
                       wheel_pairs=pairs, scene=scene.kind, extra=extra)
 
     def objects_3d(self, scene, box_id: dict) -> dict:
-        """3D truth of the annotated objects in the ISO 8855 vehicle frame (DESIGN §4): vehicles as boxes,
+        """3D truth of the annotated objects in the ISO 8855 vehicle frame (docs/design.md §4): vehicles as boxes,
         wheels by their ground contact point (the middle of the tyre's footprint)."""
         out = {}
         for (cls, idx), bid in sorted(box_id.items(), key=lambda kv: kv[1]):
