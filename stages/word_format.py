@@ -1,4 +1,4 @@
-"""The WORD-style dataset format of DESIGN §4: the one reader, writer and validator every stage uses.
+"""The WORD-style dataset format of docs/design.md §4: the one reader, writer and validator every stage uses.
 
 A dataset is ``<root>/labels.jsonl`` (one record per image) plus the image files the records name.
 The data stage's output directory additionally holds ``dataset.json`` (where the root is) and
@@ -376,7 +376,7 @@ def check_image_files(root: str | os.PathLike, records: list[Record]) -> None:
         check_image_file(root, rec)
 
 
-# --- splits (DESIGN §7) -------------------------------------------------------------------------------
+# --- splits (docs/design.md §7) -------------------------------------------------------------------------------
 
 def split_by_frame(records: list[Record], fractions: dict[str, float], seed: int) -> dict[str, list[str]]:
     """Assign whole frames (all cameras of one instant) to train/val/test; returns image paths per split."""

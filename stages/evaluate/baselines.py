@@ -1,4 +1,4 @@
-"""The logic-model baselines of DESIGN §7, each with parameters fitted on the train split only.
+"""The logic-model baselines of docs/design.md §7, each with parameters fitted on the train split only.
 
 - ``logic``: the paper's IoU rule. Each wheel goes to the vehicle whose box has the highest IoU with the
   wheel's box, if that IoU exceeds a threshold.

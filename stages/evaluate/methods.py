@@ -53,12 +53,12 @@ class EvalContext:
 
 def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
-    model that ships (``stages.export.runtime``); needs the export stage's output."""
+    model that ships (``stages.inference.runtime``); needs the export stage's output."""
 
     def factory(ctx: EvalContext):
         if "export" not in ctx.inputs:
             return None
-        from stages.export.runtime import deepword_method
+        from stages.inference.runtime import deepword_method
 
         return deepword_method(name, ctx.inputs["export"], ctx.dataset.root)
 
@@ -88,7 +88,7 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``; None
     when the run has no detector."""
     if "export" in ctx.inputs:
-        from stages.export.runtime import NoDetectorError, OnnxDetector
+        from stages.inference.runtime import NoDetectorError, OnnxDetector
         from stages.word_format import load_image
 
         try:

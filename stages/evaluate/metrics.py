@@ -1,4 +1,4 @@
-"""DESIGN §7 metrics of predicted records against ground truth, in percent.
+"""docs/design.md §7 metrics of predicted records against ground truth, in percent.
 
 Per image, predicted boxes are first matched to ground-truth boxes of their class by IoU >= ``match_iou``,
 greedily in order of decreasing score (each ground-truth box matched at most once); with predictions that

@@ -1,4 +1,4 @@
-"""Score a WORD-format predictions file against a whole WORD-format dataset (DESIGN §7 definitions).
+"""Score a WORD-format predictions file against a whole WORD-format dataset (docs/design.md §7 definitions).
 
     python -m stages.evaluate.score --gt ROOT --pred FILE [--json OUT] [--min-box-px 8] [--seed 42]
 

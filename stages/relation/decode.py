@@ -1,4 +1,4 @@
-"""From relation scores to decisions, and the counts behind the relation metrics (DESIGN §7), in torch.
+"""From relation scores to decisions, and the counts behind the relation metrics (docs/design.md §7), in torch.
 
 Batched and vectorised so the Lightning module can score whole validation batches; the predictor uses
 the same functions on one image. Conventions: a decided ownership matrix is (B, N, N) bool with wheels
@@ -102,7 +102,7 @@ def _ratio(num: float, den: float, empty: float) -> float:
 
 
 def metrics_from_counts(c: dict[str, float]) -> dict[str, float]:
-    """Percentages (DESIGN §7). With nothing to find and nothing found, precision/recall/F1 are 100."""
+    """Percentages (docs/design.md §7). With nothing to find and nothing found, precision/recall/F1 are 100."""
     precision = _ratio(c["pair_tp"], c["pair_tp"] + c["pair_fp"], 100.0)
     recall = _ratio(c["pair_tp"], c["pair_tp"] + c["pair_fn"], 100.0)
     f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0

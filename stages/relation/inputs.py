@@ -1,4 +1,4 @@
-"""Graph inputs of the DeepWORD relation network (DESIGN §6), built once per image and cached per split.
+"""Graph inputs of the DeepWORD relation network (docs/design.md §6), built once per image and cached per split.
 
 Per image, every annotated object becomes a node:
 - its box crop with a context margin, resized to S x S (OpenCV, no RoI Align), kept as uint8 RGB;
@@ -110,7 +110,7 @@ def normalised_boxes(xyxy: np.ndarray, width: float, height: float) -> np.ndarra
 
 
 def node_tensor(crops, coords):
-    """The S x S x 7 node input of DESIGN §6, channels first: RGB in [0, 1] then four constant planes.
+    """The S x S x 7 node input of docs/design.md §6, channels first: RGB in [0, 1] then four constant planes.
     crops (..., 3, S, S) uint8 tensor, coords (..., 4) -> (..., 7, S, S) float32 tensor."""
     import torch
 

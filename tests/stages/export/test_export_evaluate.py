@@ -23,8 +23,8 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     from tiny_models import EXPORT_CFG
 
     from stages.evaluate.stage import run as evaluate
-    from stages.export.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
     from stages.export.stage import run as export
+    from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
 
     relation_only = {k: v for k, v in upstream.items() if k != "detector"}
     out = tmp_path / "export"
