@@ -96,3 +96,8 @@ def test_torchrun_two_ranks_train_relation_with_ddp_and_rank_zero_alone_records_
     assert not list((cache / ".launches").glob("*.json")) and not list((cache / "relation").glob(".partial-*"))
     weights = torch.load(Path(relation["output_dir"]) / "relation.pt", map_location="cpu", weights_only=True)
     assert weights and all(torch.isfinite(v).all() for v in weights.values() if v.is_floating_point())
+
+
+def test_ci_entry_installs_postgresql_for_the_tracking_server_test():
+    text = (REPO / ".ci" / "run").read_text()
+    assert "install -y -qq postgresql" in text and text.index("postgresql") < text.rindex("make test")
