@@ -381,6 +381,7 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     selected, _ = select_stages(specs, settings["until"], settings["skip"])
     cache = Cache(settings["cache_dir"])
     verify = settings["verify"]
+    forced = set(settings["force"])
     keys: dict[str, str] = {}
     for name in selected:
         keys[name] = key_parts(specs[name], cfg, keys).key
@@ -390,6 +391,9 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     for name in (n for n in selected if specs[n].every_rank):
         key = keys[name]
         while True:
+            # The entry first, the announcement second: an entry rank 0 committed in this launch is still
+            # announced then. A forced stage is computed again although its entry exists: only announced.
+            in_cache = name not in forced and _entry_if_complete(cache, name, key, verify) is not None
             state = watch.read()
             computing = (state.get("computing") or {}).get(name)
             if computing is not None:
@@ -397,7 +401,7 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
                     raise PipelineError(f"{rank.described}: rank 0 computes stage '{name}' under another key: the "
                                         "ranks run different code or config")
                 break
-            if _entry_if_complete(cache, name, key, verify) is not None:
+            if in_cache:
                 break
             time.sleep(POLL_SECONDS)
         if computing is None:

@@ -30,16 +30,24 @@ cfg = OmegaConf.load(sys.argv[1])
 run_pipeline(cfg, run_dir=Path(sys.argv[2]), in_process_tracking=True)
 """
 
-# Stage b of the toy project, recording every call: which rank, the input it got, where it wrote.
+# Stage b of the toy project, recording every call (which rank, the input it got, where it wrote) and, like
+# a DDP fit, returning only when both ranks of the launch have called it.
 RECORDING_BETA = """
 import os
+import time
 
 
 def run(cfg, inputs, out_dir):
     value = int((inputs["a"] / "value.txt").read_text())
     (out_dir / "sum.txt").write_text(str(value + cfg.beta.offset))
-    with open(os.environ["BETA_CALLS"], "a") as f:
-        f.write(f"{os.environ['RANK']} {inputs['a']} {out_dir}\\n")
+    calls, launch = os.environ["BETA_CALLS"], os.environ["PIPELINE_LAUNCH_ID"]
+    with open(calls, "a") as f:
+        f.write(f"{os.environ['RANK']} {inputs['a']} {out_dir} {launch}\\n")
+    deadline = time.monotonic() + 60
+    while sum(launch in line for line in open(calls)) < 2:
+        if time.monotonic() > deadline:
+            raise RuntimeError("the other rank never joined stage b")
+        time.sleep(0.05)
     return {"beta.sum": float(value + cfg.beta.offset)}
 """
 
@@ -119,6 +127,12 @@ def test_rank_one_joins_the_every_rank_stage_on_committed_inputs_and_writes_noth
     assert rank0.returncode == 0 and rank1.returncode == 0, out0 + out1
     assert "stage 'b' is in the cache, nothing to join" in out1
     assert len((toy.root / "beta_calls.txt").read_text().splitlines()) == 2
+
+    # Forced, b is computed again although its entry exists: rank 1 must join it, not skip it.
+    rank0, out0, rank1, out1 = _launch(toy, OmegaConf.merge(cfg, {"pipeline": {"force": ["b"]}}), "forced")
+    assert rank0.returncode == 0 and rank1.returncode == 0, out0 + out1
+    assert "joining stage 'b'" in out1
+    assert sorted(line.split()[0] for line in (toy.root / "beta_calls.txt").read_text().splitlines()) == ["0", "0", "1", "1"]
 
 
 @pytest.mark.slow
