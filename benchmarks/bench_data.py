@@ -1,5 +1,5 @@
 """Synthetic data generation speed: images per second, and the projected time of the full profile's
-9,000 images (2,250 frames x 4 cameras) on 2 cores against its 10-minute target (issue 2).
+9,000 images (2,250 frames x 4 cameras) on 2 cores against its 10-minute target.
 
 Frames are rendered in this process (no pool) and timed by both wall clock and this process' CPU time:
 on a shared machine the CPU time gives the per-core rate the wall clock hides; the projection assumes

@@ -1,12 +1,12 @@
 """Labels made from the render: consistency, the paper's hard cases, splits by frame."""
 
 import numpy as np
-from data_helpers import synword_cfg
 
 from stages.data.stats import boxes_meet_at_wheel, make_splits, multi_box_wheels, split_metrics
 from stages.data.synword import FrameGenerator
 from stages.geometry import containment
 from stages.word_format import VEHICLE, WHEEL, Record, read_records, write_records
+from tests.stages.data.data_helpers import synword_cfg
 
 
 def test_records_are_valid_word_records_with_images(synword_sample):

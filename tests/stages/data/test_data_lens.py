@@ -4,7 +4,7 @@ inside the configured ranges, one-to-one beyond the field of view, labels in eac
 import math
 
 import numpy as np
-from data_helpers import synword_cfg
+from tests.stages.data.data_helpers import synword_cfg
 
 from stages.data.camera import rig_cameras
 from stages.word_format import CAMERAS

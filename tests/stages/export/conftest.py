@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
-from tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from tests.stages.export.tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 W, H = 160, 120
 def car_row(rng: np.random.Generator, n_cars: int):
