@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> dict:
     per_core = renders / cpu
     projected = FULL_RENDERS / (CORES * per_core)
     w, h = cfg["image_size"]
-    print(f"bench_data: {renders} renders ({kept} kept) at {w}x{h}: {renders / wall:.1f} images/s wall, "
+    print(f"bench_data: {renders} renders ({kept} kept) around {w}x{h} (lens and size drawn per camera): {renders / wall:.1f} images/s wall, "
           f"{per_core:.1f} images/s per CPU-second (one process)")
     print(f"bench_data: projected full profile ({FULL_RENDERS} images) on {CORES} cores: {projected:.0f} s = "
           f"{projected / TARGET_S:.2f} x the {TARGET_S:.0f} s target")

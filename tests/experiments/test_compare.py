@@ -177,3 +177,22 @@ def test_results_page_gets_the_tables_and_charts_with_commit_and_date_and_keeps_
     assert "smoke experiment=table3 (abc, " in text  # the run's name, commit and date
     assert "![comparison.png](results/comparison.png)" in text
     assert (tmp_path / "docs" / "results" / "comparison.png").stat().st_size > 10_000
+
+
+def test_bev_table_takes_the_newest_run_with_footprint_metrics():
+    from pipeline.runs import RunRecord
+    from stages.tables.compare import bev_table
+
+    def run(name, metrics):
+        return RunRecord(name, name, 0, {}, metrics, {})
+
+    newest = {"bev.gt.deepword.paired.center_err_m": 0.16, "bev.gt.deepword.center_err_m": 0.24,
+              "bev.gt.box_bottom.paired.center_err_m": 0.8, "bev.detected.deepword.paired.recall": 90.0}
+    table, used = bev_table([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
+                             run("old", {"bev.gt.deepword.paired.center_err_m": 9.0})])
+    assert used == {"bev": "new"}
+    rows = {(r[0], r[1]): r[2:] for r in table.rows}
+    assert rows[("gt", "DeepWORD")][0] == 0.16 and rows[("gt", "DeepWORD")][4] == 0.24
+    assert rows[("gt", "box bottom (no relation)")][0] == 0.8 and ("gt", "Logic model") not in rows
+    assert rows[("detected", "DeepWORD")][3] == 90.0
+    assert bev_table([])[1] == {"bev": None} and not bev_table([])[0].rows

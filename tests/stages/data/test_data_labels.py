@@ -68,7 +68,7 @@ def test_occluded_and_tiny_objects_are_not_annotated():
     vstats = [ObjectStats(100, 100, (10, 10, 60, 40))] + [ObjectStats(100, 10, (0, 0, 30, 30))] * (nv - 1)
     wstats = [ObjectStats(50, 50, (20, 30, 30, 40)), ObjectStats(50, 50, (40, 30, 43, 40))]
     wstats += [ObjectStats(0, 0, None)] * (4 * nv - 2)
-    rec = gen.labels(3, "front", scene, vstats, wstats, rng)
+    rec = gen.labels(3, gen.tables(3)[0].cam, scene, vstats, wstats, rng)
     # vehicle 0 fully visible; the others 10 % visible (< min_visible_fraction); wheel 1 is 3 px wide
     assert rec.n_vehicles == 1 and rec.n_wheels == 1
     v, w, role = rec.relations[0]

@@ -124,9 +124,12 @@ def generated_images(tmp_path_factory) -> list[Path]:
 
     cfg = OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[3] / "conf/data/synword.yaml"), resolve=True)
     cfg["image_size"] = [320, 240]
+    cfg["lens"]["randomise"] = False  # the nominal rig: every image 320x240
     out = tmp_path_factory.mktemp("frame")
     paths = []
-    for camera, rgb, _ in FrameGenerator(cfg, seed=0).render_frame(0):
+    for camera, rgb, rec in FrameGenerator(cfg, seed=0).render_frame(0):
         paths.append(out / f"{camera}.png")
         cv2.imwrite(str(paths[-1]), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        # each camera's calibration as a WoodScape-style JSON file beside its image
+        (out / f"{camera}.json").write_text(json.dumps({**rec.extra["calibration"], "name": camera}))
     return paths
