@@ -4,10 +4,10 @@ inside the configured ranges, one-to-one beyond the field of view, labels in eac
 import math
 
 import numpy as np
-from tests.stages.data.data_helpers import synword_cfg
 
 from stages.data.camera import rig_cameras
 from stages.word_format import CAMERAS
+from tests.stages.data.data_helpers import synword_cfg
 
 
 def _draw(cfg, rigs=range(12), seed=5):
