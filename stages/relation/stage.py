@@ -20,8 +20,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from stages.checkpoints import best_and_latest
-from stages.lightning_logs import route_lightning_logs
-from stages.progress import lightning_progress
+from stages.lightning_logs import lightning_progress, route_lightning_logs
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
 
