@@ -13,7 +13,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "every_rank"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank"}
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,7 @@ class StageSpec:
     watch: tuple[str, ...]
     checks: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (config key, rules): see pipeline.checks
     optional: tuple[str, ...] = ()  # inputs the stage can run without (when pipeline.skip leaves them out)
+    dataset: str | None = None  # the output is a dataset of this name: an MLflow dataset input of the run
     # In a launch of several processes (torchrun, srun): every rank calls the stage (it joins a process group,
     # e.g. DDP training), not rank 0 alone; only rank 0's outputs are kept (pipeline.ranks).
     every_rank: bool = False
@@ -77,6 +78,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         watch=_str_list(name, "watch", node.get("watch")),
         checks=parse_checks(name, node.get("checks")),
         optional=optional,
+        dataset=None if node.get("dataset") is None else str(node.get("dataset")),
         every_rank=every_rank,
     )
 

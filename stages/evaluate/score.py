@@ -16,8 +16,8 @@ import json
 import sys
 from pathlib import Path
 
-from stages.evaluate.metrics import evaluated_wheel_ids, score_records
 from stages.evaluate.report import render_markdown
+from stages.metrics import evaluated_wheel_ids, score_records
 from stages.word_format import LABELS_FILE, DatasetError, Record, difficulty_subsets, read_records
 
 

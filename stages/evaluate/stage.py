@@ -12,12 +12,17 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
-from stages.evaluate.metrics import evaluated_wheel_ids, score_records
 from stages.evaluate.report import PAPER_TABLE3, flatten, render_markdown
+from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 
 BASELINES_FILE = "baselines.json"
+
+
+def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
+    """Where a method's predictions on a box source are written (the bev stage reads them back)."""
+    return Path(pred_dir) / f"{boxes}_{method}.jsonl"
 
 
 def build_methods(ctx: EvalContext) -> dict[str, object]:
@@ -60,7 +65,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         results[boxes] = {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}
-            write_records(pred_dir / f"{boxes}_{name}.jsonl", list(preds.values()))
+            write_records(predictions_file(pred_dir, boxes, name), list(preds.values()))
             results[boxes][name] = {s: score_records(recs, preds, min_px, iou).percentages()
                                     for s, recs in subsets.items()}
             if boxes == "gt":

@@ -16,7 +16,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from pipeline_runs import free_port
+from tests.experiments.pipeline_runs import free_port
 
 UNPRIVILEGED_USER = "nobody"
 DATABASE = "mlflow"

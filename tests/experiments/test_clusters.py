@@ -16,7 +16,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from packaging.requirements import Requirement
-from pipeline_runs import CONF, REPO, TINY
+
+from tests.experiments.pipeline_runs import CONF, REPO, TINY
 
 
 def _pinned(package: str) -> str:
@@ -57,7 +58,8 @@ def test_torchrun_two_ranks_train_relation_with_ddp_and_rank_zero_alone_records_
     Data and priors are the shared smoke run's entries; the relation network trains on both ranks."""
     import torch
     from mlflow.tracking import MlflowClient
-    from sqlite_store import fresh_store
+
+    from tests.sqlite_store import fresh_store
 
     cache = smoke_store["dir"] / "cache"
     before = {p for p in cache.rglob("*")}

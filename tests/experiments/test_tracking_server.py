@@ -8,8 +8,9 @@ import subprocess
 import sys
 
 import pytest
-from pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
-from postgres_cluster import PostgresCluster, find_bin_dir
+
+from tests.experiments.pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
+from tests.experiments.postgres_cluster import PostgresCluster, find_bin_dir
 
 pytestmark = pytest.mark.slow
 
