@@ -9,7 +9,6 @@ config seed and the frame index), so generation parallelises across processes an
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import os
 from pathlib import Path
@@ -17,58 +16,53 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stages.data.backdrop import GroundBank, cloud_field, draw_look, ground_texture
 from stages.data.camera import camera_from_config
-from stages.data.render import (
-    TEX_HALF,
-    TEX_RES,
-    build_tables,
-    ego_vehicle,
-    finish,
-    ground_texture,
-    noise_bank,
-    render_camera,
-)
+from stages.data.domain import DomainConfig
+from stages.data.render import build_tables, ego_vehicle, render_camera
+from stages.data.sensor import apply_sensor, draw_sensor, noise_bank
 from stages.data.world import SceneSampler
 from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
 
 
 class FrameGenerator:
-    """Everything a process needs to render frames; per-camera tables are built once."""
+    """Everything a process needs to render frames; per-camera tables and textures are built once."""
 
     def __init__(self, cfg: dict, seed: int):
         self.cfg = cfg
         self.seed = int(seed)
+        self.stream = int(cfg.get("stream", 0))
+        self.domain = DomainConfig.from_cfg(cfg.get("domain"))
         w, h = cfg["image_size"]
         cams = cfg["cameras"]
         self.cameras = [camera_from_config(name, cams[name], w, h, cams["reference_size"]) for name in CAMERAS]
         self.ego = ego_vehicle(cfg["ego"])
         self.tables = [build_tables(cam, self.ego) for cam in self.cameras]
-        self.sampler = SceneSampler(cfg["scenes"], self.ego.length, self.ego.width)
-        n = int(round(2 * TEX_HALF / TEX_RES))
-        blotches = np.random.default_rng(12345).normal(0, 1, (n // 16, n // 16)).astype(np.float32)
-        fine = np.random.default_rng(54321).normal(0, 1, (n, n)).astype(np.float32)
-        self.sensor_noise = noise_bank(w, h, cfg["render"]["noise_sigma"])
-        self.noise = np.clip(128 + 9 * cv2.resize(blotches, (n, n), interpolation=cv2.INTER_CUBIC) + 5 * fine,
-                             0, 255).astype(np.uint8)
+        self.sampler = SceneSampler(cfg["scenes"], self.domain, self.ego.length, self.ego.width)
+        self.grounds = GroundBank(self.domain.grounds)
+        self.clouds = cloud_field()
+        self.sensor_noise = noise_bank(w, h)
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:
-        return np.random.default_rng(np.random.SeedSequence([self.seed, int(frame_id)]))
+        """The frame's own random stream: a pure function of the seed, the dataset's stream (the held-out
+        dataset draws other scenes than the in-domain one) and the frame index."""
+        return np.random.default_rng(np.random.SeedSequence([self.seed, self.stream, int(frame_id)]))
 
     def render_frame(self, frame_id: int):
         """-> list of (camera name, RGB uint8 image, Record) for the frame's four cameras."""
         rng = self.frame_rng(frame_id)
         scene = self.sampler.sample(rng)
-        rcfg = self.cfg["render"]
-        sun_az, sun_el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(25, 65))
-        sun = np.array([math.cos(sun_az) * math.cos(sun_el), math.sin(sun_az) * math.cos(sun_el), math.sin(sun_el)])
-        tex = ground_texture(scene, self.noise, sun)
-        skyline = rng.uniform(3, 25, 72).astype(np.float32) * (rng.random(72) < 0.8)
-        skyline_rgb = (rng.uniform(0.3, 0.65, (72, 1)) * rng.uniform(0.9, 1.1, (72, 3))).astype(np.float32)
+        d = self.domain
+        look = draw_look(rng, d.draw(rng, "skies"), d.draw(rng, "grounds"), d.sun_elevation_deg)
+        tex = ground_texture(self.grounds, look, scene)
+        frame_domain = look.to_record() | scene_families(scene)
         out = []
         for tables in self.tables:
-            rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun)
-            img = finish(rgb, rng, self.sensor_noise, rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
+            rgb, _, vstats, wstats = render_camera(tables, scene, tex, look, self.clouds)
+            sensor = draw_sensor(rng, d.sensor)
+            img = apply_sensor(rgb, sensor, rng, self.sensor_noise, tables.falloff)
             rec = self.labels(frame_id, tables.cam.name, scene, vstats, wstats, rng)
+            rec.extra["domain"] = frame_domain | {"sensor": sensor.to_record()}
             out.append((tables.cam.name, img, rec))
         return out
 
@@ -105,6 +99,15 @@ class FrameGenerator:
         return Record(image=image_path(camera, frame_id), frame_id=int(frame_id), camera=camera, width=int(w),
                       height=int(h), boxes=arr, relations=relations, wheel_pairs=pairs, scene=scene.kind,
                       extra={"layout": scene.layout})
+
+
+def scene_families(scene) -> dict:
+    """The families a frame's scene drew on each object axis (recorded per image, checked by the tests that
+    keep held-out families out of training data)."""
+    vs = scene.vehicles
+    return {"bodies": sorted({v.kind for v in vs}), "paints": sorted({v.paint for v in vs}),
+            "materials": sorted({v.material for v in vs}), "wheels": sorted({v.wheel_look.style for v in vs}),
+            "props": sorted({p.kind for p in scene.props})}
 
 
 def image_path(camera: str, frame_id: int) -> str:
