@@ -112,3 +112,17 @@ def test_a_bad_domain_config_names_the_field(domains, axis, value, message):
     train, _ = domains
     with pytest.raises(ValueError, match=__import__("re").escape(message)):
         DomainConfig.from_cfg(dict(train["domain"], **{axis: value}))
+
+
+def test_the_held_out_stage_puts_every_image_in_its_test_split(domains, tmp_path):
+    from stages.data.stage import run_heldout
+    from stages.word_format import open_dataset
+
+    _, heldout = domains
+    cfg = OmegaConf.create({"shift": {"data": dict(heldout, frames=4)}, "seed": 1})
+    metrics = run_heldout(cfg, {}, tmp_path)
+    ds = open_dataset(tmp_path)
+    assert ds.records and len(ds.subset("test")) == len(ds.records)
+    assert not ds.subset("train") and not ds.subset("val")
+    assert metrics["data.shift.test.images"] == len(ds.records)
+    assert all(k.startswith("data.shift.test.") for k in metrics)
