@@ -11,6 +11,7 @@ sky and ground in ``backdrop``, camera effects in ``sensor``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -156,14 +157,8 @@ def render_vehicle(tables: CameraTables, v: Vehicle, vid: int, wheel_ids, tbuf, 
         t, near = intersect_box(o, dl, half)
         t[~valid] = np.inf
 
-        def colour(win, dl=dl, o=o, t=t, near=near, half=half, name=name):
-            axis = face_axis(near, win)
-            dw = dl[:, win]
-            sign = -np.sign(dw[axis, np.arange(len(axis))])
-            p = o + t[win, None] * dw.T
-            return body_colour(v, name, half, p, dw.T, axis, sign, light)
-
-        hit = zwrite(crop, t, tbuf, ids, rgb, vid, colour)
+        hit = zwrite(crop, t, tbuf, ids, rgb, vid, partial(_shade_box_hits, dl=dl, o=o, t=t, near=near,
+                                                             shade=partial(body_colour, v, name, half, light=light)))
         or_into(own, hit, crop, vc)
     hw = v.wheel_w / 2
     origin = R.T @ (cam.position - v.to_ego(np.zeros(3)))
@@ -177,12 +172,9 @@ def render_vehicle(tables: CameraTables, v: Vehicle, vid: int, wheel_ids, tbuf, 
         t, on_cap = intersect_wheel(o, dl, v.wheel_r, hw)
         t[~valid] = np.inf
 
-        def colour(win, dl=dl, o=o, t=t, on_cap=on_cap):
-            p = o + t[win, None] * dl[:, win].T
-            return wheel_colour(v.wheel_look, v.wheel_r, p, on_cap[win], float(np.sign(o[1])), light)
-
         wid = vid if wheel_ids is None else wheel_ids[k]
-        hit = zwrite(crop, t, tbuf, ids, rgb, wid, colour)
+        hit = zwrite(crop, t, tbuf, ids, rgb, wid, partial(_shade_wheel_hits, v=v, dl=dl, o=o, t=t, on_cap=on_cap,
+                                                           light=light))
         own_counts[k] = int(hit.sum()) if wheel_ids is not None else 0
         or_into(own, hit, crop, vc)
     return own
@@ -204,14 +196,27 @@ def render_props(tables: CameraTables, props: list[Prop], tbuf, ids, rgb, sun, s
         t, near = intersect_box(o, dl, box.half)
         t[~valid] = np.inf
         light = Light(sun=(R.T @ sun).astype(np.float32), strength=float(sun_strength))
+        shade = partial(_shade_prop, box.colour, prop.kind, light=light)
+        zwrite(tuple(int(c) for c in crop), t, tbuf, ids, rgb, PROP_ID,
+               partial(_shade_box_hits, dl=dl, o=o, t=t, near=near, shade=shade))
 
-        def colour(win, dl=dl, o=o, t=t, near=near, prop=prop, box=box, light=light):
-            axis = face_axis(near, win)
-            dw = dl[:, win]
-            sign = -np.sign(dw[axis, np.arange(len(axis))])
-            return prop_colour(box.colour, prop.kind, o + t[win, None] * dw.T, axis, sign, light)
 
-        zwrite(tuple(int(c) for c in crop), t, tbuf, ids, rgb, PROP_ID, colour)
+def _shade_box_hits(win, dl, o, t, near, shade):
+    """Colours of the rays ``win`` that hit a box first: hit points, face axis and side, passed to
+    ``shade(p, view, axis, sign)``."""
+    axis = face_axis(near, win)
+    dw = dl[:, win]
+    sign = -np.sign(dw[axis, np.arange(len(axis))])
+    return shade(o + t[win, None] * dw.T, dw.T, axis, sign)
+
+
+def _shade_wheel_hits(win, v: Vehicle, dl, o, t, on_cap, light: Light):
+    p = o + t[win, None] * dl[:, win].T
+    return wheel_colour(v.wheel_look, v.wheel_r, p, on_cap[win], float(np.sign(o[1])), light)
+
+
+def _shade_prop(colour, kind, p, view, axis, sign, light: Light):
+    return prop_colour(colour, kind, p, axis, sign, light)
 
 
 # --- frame --------------------------------------------------------------------------------------------
