@@ -67,8 +67,8 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
 
     from stages.detector.model import build_centernet, model_config
     from stages.export.onnx_export import export_detector, export_relation
-    from stages.export.runtime import DETECTOR_FILE, RELATION_FILES
     from stages.export.stage import detector_latency, quantize_int8, relation_latency, size_mb
+    from stages.inference.runtime import DETECTOR_FILE, RELATION_FILES
     from stages.relation.inputs import InputConfig
     from stages.relation.model import ModelConfig, RelationNet, count_parameters
 

@@ -2,7 +2,7 @@
 ``logic_plus`` over several datasets, from the runs in MLflow.
 
 Reads the pipeline's parent runs (one per ``python -m pipeline`` invocation; every stage's metrics are on
-it, DESIGN §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
+it, docs/design.md §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
 that row's configuration, whichever command produced it (a sweep of ``make ablations`` or a single run).
 Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's),
 ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed, the newest run of each) and logs
@@ -132,7 +132,7 @@ def load_runs(client, experiment_id: str, profile: str | None) -> list[RunRecord
 
 def pick(runs: list[RunRecord], row: Row, needed: str, experiment: str | None = None) -> RunRecord | None:
     """The newest run of ``row``'s configuration that has the metric ``needed``; with ``experiment``, a run
-    of that sweep first (its rows share one training budget, DESIGN §8), else any run of the row."""
+    of that sweep first (its rows share one training budget, docs/design.md §8), else any run of the row."""
     found = [run for run in runs if needed in run.metrics and matches(row, run.params)]  # newest first
     own = [run for run in found if _value(run.params.get("experiment_name")) == experiment]
     return (own or found or [None])[0]
@@ -177,7 +177,7 @@ def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], exp
         out.append([row.label, None if params is None else int(params), m.get(LATENCY_METRIC), None,
                     m.get(ACC_METRIC), m.get(IMAGE_ACC_METRIC), None, run.name if run else NOT_AVAILABLE])
         used[row.label] = run.run_id if run else None
-    notes = ["Ours: ground-truth boxes, mixed test subset (DESIGN §7); latency: onnxruntime, batch 1, "
+    notes = ["Ours: ground-truth boxes, mixed test subset (docs/design.md §7); latency: onnxruntime, batch 1, "
              "this machine.",
              "Paper column n/a: the paper's figures for this table are not transcribed here (unverified).",
              "A row shows n/a when no finished run of its configuration with evaluation metrics is in "

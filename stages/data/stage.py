@@ -1,5 +1,5 @@
 """The ``data`` stage: generate (``data=synword``) or validate (``data=word``) a WORD-style dataset, split it
-by frame into train/val/test with easy/hard/mixed test subsets, and report DESIGN §7's dataset metrics.
+by frame into train/val/test with easy/hard/mixed test subsets, and report docs/design.md §7's dataset metrics.
 The ``shift_data`` stage builds the cross-domain benchmark's held-out test set (``shift.data``, a
 data-like config drawing only held-out families) the same way; its metrics are ``data.shift.test.*``.
 

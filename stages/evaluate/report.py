@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from stages.evaluate.metrics import METRICS
+from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
 # The paper's Table 3 (Wu et al.): it does not say whether per wheel or per image, so it is printed
@@ -13,7 +13,7 @@ BOX_TITLES = {"gt": "ground-truth boxes", "detected": "detected boxes (end-to-en
 
 
 def metric_name(boxes: str, method: str, subset: str, metric: str) -> str:
-    """The MLflow key of DESIGN §7."""
+    """The MLflow key of docs/design.md §7."""
     return f"eval.{boxes}.{method}.{subset}.{metric}"
 
 
@@ -40,7 +40,7 @@ def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list
     out = [f"# {title}", ""]
     out.append("Subsets: " + ", ".join(f"{s} = {sizes[s]['images']} images / {sizes[s]['wheels']} evaluated wheels"
                                        for s in SUBSETS if s in sizes) + ".")
-    out.append("Metrics in percent (DESIGN §7). The paper's Table 3 rows (italic) are printed beside "
+    out.append("Metrics in percent (docs/design.md §7). The paper's Table 3 rows (italic) are printed beside "
                "wheel_acc and image_acc because the paper does not say which one it reports.")
     out.append("")
     for boxes, methods in results.items():

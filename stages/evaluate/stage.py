@@ -14,8 +14,8 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
-from stages.evaluate.metrics import evaluated_wheel_ids, score_records
 from stages.evaluate.report import PAPER_TABLE3, flatten, render_markdown
+from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 

@@ -12,7 +12,7 @@
    the same inputs in the same process, the static model padded to max_objects, INT8, detector;
 5. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
 
-The output directory is the self-contained bundle ``stages.export.runtime`` documents; reports go to
+The output directory is the self-contained bundle ``stages.inference.runtime`` documents; reports go to
 ``artifacts/`` (``latency.md``, ``parity.json``).
 """
 
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.export.runtime import (
+from stages.inference.runtime import (
     BUNDLE_FILE,
     DETECTOR_FILE,
     DETECTOR_INPUT,
@@ -81,7 +81,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict) -
 
 
 def wheel_acc_by_subset(ds, preds: dict, min_box_px: float) -> dict[str, float]:
-    from stages.evaluate.metrics import score_records
+    from stages.metrics import score_records
 
     return {s: score_records(ds.subset(s), preds, min_box_px).percentages()["wheel_acc"] for s in SUBSETS}
 

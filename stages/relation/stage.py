@@ -34,14 +34,17 @@ def _limit(records: list, limit) -> list:
     return records if limit is None else records[: int(limit)]
 
 
-def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, cache_dir: Path) -> SplitInputs:
+def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, cache_dir: Path,
+                 min_box_px: float) -> SplitInputs:
     """A split's graphs, from ``cache_dir/<name>.npz`` when an interrupted run already built them."""
     path = cache_dir / f"{name}.npz"
     meta = cache_dir / f"{name}.json"
-    key = json.dumps({"inputs": asdict(in_cfg), "images": [r.image for r in records]}, sort_keys=True)
+    key = json.dumps({"inputs": asdict(in_cfg), "min_box_px": min_box_px, "images": [r.image for r in records]},
+                     sort_keys=True)
     if path.is_file() and meta.is_file() and meta.read_text() == key:
         return SplitInputs.load(path)
-    split = build_split(records, lambda rec: load_image(root, rec), in_cfg, priors.wheel_vehicle, priors.wheel_wheel)
+    split = build_split(records, lambda rec: load_image(root, rec), in_cfg, priors.wheel_vehicle, priors.wheel_wheel,
+                        min_box_px)
     cache_dir.mkdir(parents=True, exist_ok=True)
     split.save(path)
     meta.write_text(key)
@@ -87,10 +90,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     model_cfg = ModelConfig.from_cfg(rel)
     check_object_counts(ds.records, in_cfg.max_objects)  # every split: export uses the same padding
     cache_dir = out_dir / "inputs"
+    min_box_px = float(rel.val_min_box_px)
     train = split_inputs("train", _limit(ds.subset("train"), rel.train.limit_train_images), ds.root, in_cfg,
-                         priors, cache_dir)
+                         priors, cache_dir, min_box_px)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
-                       cache_dir)
+                       cache_dir, min_box_px)
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
 

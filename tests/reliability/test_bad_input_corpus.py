@@ -1,4 +1,4 @@
-"""Every bad input of the corpus gives a DatasetError naming file, line and field (DESIGN §4, §10)."""
+"""Every bad input of the corpus gives a DatasetError naming file, line and field (docs/design.md §4, §10)."""
 
 from __future__ import annotations
 

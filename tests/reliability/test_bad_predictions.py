@@ -1,5 +1,5 @@
 """The scoring path: a detector predictions file with problems is refused with file, line and field,
-never scored silently (DESIGN §4: predictions use the dataset format with real scores)."""
+never scored silently (docs/design.md §4: predictions use the dataset format with real scores)."""
 
 from __future__ import annotations
 

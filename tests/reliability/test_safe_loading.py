@@ -1,4 +1,4 @@
-"""Checkpoints and weights load with ``weights_only=True`` (DESIGN §10): a file that would run code when
+"""Checkpoints and weights load with ``weights_only=True`` (docs/design.md §10): a file that would run code when
 unpickled is refused by every loader, and no code path loads pickles another way."""
 
 from __future__ import annotations

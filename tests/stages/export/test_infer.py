@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stages.cli import main as deepword
-from stages.export.infer import main as infer
+from stages.inference.infer import main as infer
 from stages.word_format import read_records
 
 REPO = Path(__file__).parents[3]
@@ -102,7 +102,7 @@ def test_run_id_resolves_to_the_runs_cache_entries(upstream, exported, evaluated
 
     from mlflow.tracking import MlflowClient
 
-    from stages.export.resolve import ResolveError, stage_dirs
+    from stages.inference.resolve import ResolveError, stage_dirs
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(tracking_uri=uri)

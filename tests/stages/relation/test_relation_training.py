@@ -168,7 +168,8 @@ def _stage_cfg(**train):
     rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
                                 "precision": "32-true", "threads": 1})
-    return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0})
+    evaluation = OmegaConf.load("conf/eval/default.yaml")  # relation.val_min_box_px follows eval.min_box_px
+    return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0, "eval": evaluation})
 
 
 def _run_stage(root, out_name: str, **train) -> tuple[dict, Path]:

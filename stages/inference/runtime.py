@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.export.decode import decode_couples, decode_owners
+from stages.inference.decode import decode_couples, decode_owners
 from stages.word_format import Record
 
 BUNDLE_FILE = "export.json"

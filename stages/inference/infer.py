@@ -7,7 +7,7 @@ exported models in onnxruntime (torch is never imported on this path).
 
 Options: ``--method deepword|deepword_int8|logic|logic_plus|prior`` (the baselines use the thresholds the
 pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--run RUN_ID`` picks the pipeline
-run whose artifacts to use (default: the newest finished one; see ``stages.export.resolve``), or
+run whose artifacts to use (default: the newest finished one; see ``stages.inference.resolve``), or
 ``--export DIR`` [``--evaluate DIR``] name the stage output directories directly.
 
 Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.export.runtime import METHOD_VARIANTS
+from stages.inference.runtime import METHOD_VARIANTS
 from stages.word_format import CAMERAS, DatasetError, Record, write_records
 
 BASELINES = ("logic", "logic_plus", "prior")
@@ -69,7 +69,7 @@ def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], d
 
 def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     """The export (and, for a baseline, evaluate) stage directories to use."""
-    from stages.export.resolve import stage_dirs
+    from stages.inference.resolve import stage_dirs
 
     if args.export is not None:
         dirs = {"export": args.export}
@@ -84,12 +84,12 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
     if name in METHOD_VARIANTS:
-        from stages.export.runtime import deepword_method
+        from stages.inference.runtime import deepword_method
 
         return deepword_method(name, dirs["export"], root, threads, load_rgb)
     from stages.evaluate.baselines import baseline_from_params
     from stages.evaluate.stage import BASELINES_FILE
-    from stages.export.runtime import PRIORS_FILE
+    from stages.inference.runtime import PRIORS_FILE
     from stages.priors.mixture import load_priors
 
     if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
@@ -138,7 +138,7 @@ def infer(args) -> list[Record]:
         return pixels[rec.image]
 
     if detect:
-        from stages.export.runtime import OnnxDetector
+        from stages.inference.runtime import OnnxDetector
 
         detector = OnnxDetector(dirs["export"], args.threads)
         records = [detector.detect(rgb_of(r), r) for r in records]
@@ -177,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give either IMAGE... or --dataset ROOT")
     if args.detect and args.dataset is None:
         p.error("--detect goes with --dataset (loose images are always detected)")
-    from stages.export.resolve import ResolveError
-    from stages.export.runtime import NoDetectorError
+    from stages.inference.resolve import ResolveError
+    from stages.inference.runtime import NoDetectorError
 
     try:
         preds = infer(args)
