@@ -16,21 +16,10 @@ import numpy as np
 from stages.data.backdrop import GROUNDS, SKIES
 from stages.data.bodies import BODY_FAMILIES, MATERIALS, PAINTS, WHEEL_STYLES
 from stages.data.props import PROP_KINDS
-from stages.data.sensor import SensorRanges
+from stages.data.sensor import SensorRanges, parse_range
 
 AXES = {"bodies": tuple(BODY_FAMILIES), "paints": PAINTS, "materials": MATERIALS, "wheels": WHEEL_STYLES,
         "skies": SKIES, "grounds": GROUNDS, "props": PROP_KINDS}
-
-
-def _range(cfg: dict, key: str, where: str, lo_bound: float | None = None) -> tuple[float, float]:
-    value = cfg.get(key)
-    if not isinstance(value, (list, tuple)) or len(value) != 2 or not all(isinstance(v, (int, float)) for v in value):
-        raise ValueError(f"{where}.{key}: expected [min, max], got {value!r}")
-    lo, hi = float(value[0]), float(value[1])
-    if lo > hi or (lo_bound is not None and lo < lo_bound):
-        raise ValueError(f"{where}.{key}: expected min <= max{'' if lo_bound is None else f' and min >= {lo_bound}'}, "
-                         f"got {value!r}")
-    return lo, hi
 
 
 @dataclass(frozen=True)
@@ -61,12 +50,12 @@ class DomainConfig:
             if unknown:
                 raise ValueError(f"{where}.{axis}: unknown families {unknown}; known: {list(known)}")
             families[axis] = tuple(dict.fromkeys(names))  # order kept, duplicates dropped
-        lo, hi = _range(cfg, "props_per_frame", where, 0)
+        lo, hi = parse_range(cfg, "props_per_frame", where, 0)
         near = float(cfg.get("props_near_vehicles", 0.5))
         if not 0 <= near <= 1:
             raise ValueError(f"{where}.props_near_vehicles: expected a share in [0, 1], got {near}")
         return cls(**families, props_per_frame=(int(lo), int(hi)), props_near_vehicles=near,
-                   sun_elevation_deg=_range(cfg, "sun_elevation_deg", where, 1),
+                   sun_elevation_deg=parse_range(cfg, "sun_elevation_deg", where, 1),
                    sensor=SensorRanges.from_cfg(cfg.get("sensor"), f"{where}.sensor"))
 
     def draw(self, rng: np.random.Generator, axis: str) -> str:

@@ -12,6 +12,18 @@ import numpy as np
 NOISE_PAD = 64
 
 
+def parse_range(cfg: dict, key: str, where: str, lo_bound: float | None = None) -> tuple[float, float]:
+    """``cfg[key]`` as a validated (min, max); errors name ``where.key`` (the generator's config fields)."""
+    value = cfg.get(key)
+    if not isinstance(value, (list, tuple)) or len(value) != 2 or not all(isinstance(v, (int, float)) for v in value):
+        raise ValueError(f"{where}.{key}: expected [min, max], got {value!r}")
+    lo, hi = float(value[0]), float(value[1])
+    if lo > hi or (lo_bound is not None and lo < lo_bound):
+        raise ValueError(f"{where}.{key}: expected min <= max{'' if lo_bound is None else f' and min >= {lo_bound}'}, "
+                         f"got {value!r}")
+    return lo, hi
+
+
 @dataclass(frozen=True)
 class SensorRanges:
     """Bounds of each effect (``data.domain.sensor``)."""
@@ -26,8 +38,6 @@ class SensorRanges:
 
     @classmethod
     def from_cfg(cls, cfg, where: str) -> SensorRanges:
-        from stages.data.domain import _range  # one parser of [min, max] fields
-
         if not isinstance(cfg, dict):
             raise ValueError(f"{where}: expected a mapping, got {cfg!r}")
         wb, prob = float(cfg.get("white_balance", 0.0)), float(cfg.get("jpeg_prob", 0.0))
@@ -35,14 +45,14 @@ class SensorRanges:
             raise ValueError(f"{where}.white_balance: expected a value in [0, 1), got {wb}")
         if not 0 <= prob <= 1:
             raise ValueError(f"{where}.jpeg_prob: expected a probability, got {prob}")
-        q = _range(cfg, "jpeg_quality", where, 1)
+        q = parse_range(cfg, "jpeg_quality", where, 1)
         if q[1] > 100:
             raise ValueError(f"{where}.jpeg_quality: expected values in [1, 100], got {list(q)}")
-        vig = _range(cfg, "vignetting", where, 0)
+        vig = parse_range(cfg, "vignetting", where, 0)
         if vig[1] >= 1:
             raise ValueError(f"{where}.vignetting: expected shares below 1, got {list(vig)}")
-        return cls(noise_sigma=_range(cfg, "noise_sigma", where, 0), blur_sigma=_range(cfg, "blur_sigma", where, 0),
-                   exposure=_range(cfg, "exposure", where, 0.01), white_balance=wb, vignetting=vig,
+        return cls(noise_sigma=parse_range(cfg, "noise_sigma", where, 0), blur_sigma=parse_range(cfg, "blur_sigma", where, 0),
+                   exposure=parse_range(cfg, "exposure", where, 0.01), white_balance=wb, vignetting=vig,
                    jpeg_prob=prob, jpeg_quality=(int(q[0]), int(q[1])))
 
 

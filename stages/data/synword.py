@@ -147,6 +147,7 @@ def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, pr
     in frame, camera order. ``workers`` processes (default: all cores); 1 renders in this process."""
     from tqdm import tqdm
 
+    DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
     n = int(cfg["frames"])
     workers = max(1, min(int(workers or os.cpu_count() or 1), n))
     frames = range(n)

@@ -1,6 +1,9 @@
 """Domain randomisation and the cross-domain split: every family is drawn, held-out families stay out of
 the training data, generation is deterministic per seed, labels stay consistent in the held-out domain."""
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
@@ -13,7 +16,7 @@ from stages.data.synword import FrameGenerator, generate, scene_families
 from stages.data.world import SceneSampler
 from stages.word_format import VEHICLE, WHEEL
 
-CONF = str(__import__("pathlib").Path(__file__).resolve().parents[3] / "conf")
+CONF = str(Path(__file__).resolve().parents[3] / "conf")
 OBJECT_AXES = ("bodies", "paints", "materials", "wheels", "props")
 FRAME_AXES = {"skies": "sky", "grounds": "ground"}
 
@@ -110,7 +113,7 @@ def test_held_out_generation_is_deterministic_per_seed_and_labels_consistent(dom
 ])
 def test_a_bad_domain_config_names_the_field(domains, axis, value, message):
     train, _ = domains
-    with pytest.raises(ValueError, match=__import__("re").escape(message)):
+    with pytest.raises(ValueError, match=re.escape(message)):
         DomainConfig.from_cfg(dict(train["domain"], **{axis: value}))
 
 

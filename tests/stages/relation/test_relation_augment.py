@@ -1,12 +1,14 @@
 """Appearance augmentation of the relation crops: seeded, shape- and geometry-preserving, configurable."""
 
+from pathlib import Path
+
 import pytest
 import torch
 from omegaconf import OmegaConf
 
 from stages.relation.augment import AugmentConfig, augment_crops
 
-CONF = __import__("pathlib").Path(__file__).resolve().parents[3] / "conf" / "relation" / "default.yaml"
+CONF = Path(__file__).resolve().parents[3] / "conf" / "relation" / "default.yaml"
 
 
 def configured(**changes) -> AugmentConfig:
