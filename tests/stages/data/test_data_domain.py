@@ -129,3 +129,10 @@ def test_the_held_out_stage_puts_every_image_in_its_test_split(domains, tmp_path
     assert not ds.subset("train") and not ds.subset("val")
     assert metrics["data.shift.test.images"] == len(ds.records)
     assert all(k.startswith("data.shift.test.") for k in metrics)
+
+
+def test_a_bad_domain_config_fails_before_the_worker_pool_starts(domains, tmp_path):
+    train, _ = domains
+    bad = dict(train, frames=4, domain=dict(train["domain"], grounds=["lava"]))
+    with pytest.raises(ValueError, match=re.escape("data.domain.grounds: unknown families ['lava']")):
+        generate(bad, 0, tmp_path, workers=2, progress=False)
