@@ -1,4 +1,4 @@
-"""No-op re-run time (docs/design.md §9: an all-hit re-run <= 3 s wall; issue 2: warm <= 10 % of cold).
+"""No-op re-run time (docs/design.md §9: an all-hit re-run <= 3 s wall; warm <= 10 % of cold).
 
 1. A toy six-stage DAG shaped like the real one (data -> priors -> relation -> export -> evaluate, and
    detector), each stage a few milliseconds, run through the real CLI (`python -m pipeline` with

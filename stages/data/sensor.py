@@ -97,13 +97,14 @@ def corner_falloff(width: int, height: int) -> np.ndarray:
 def apply_sensor(rgb: np.ndarray, s: SensorDraw, rng: np.random.Generator, bank: np.ndarray,
                  falloff: np.ndarray) -> np.ndarray:
     """Blur, then per-pixel gain (exposure x white balance x vignetting), noise, and a JPEG round trip."""
-    h = rgb.shape[0]
+    h, w = rgb.shape[:2]
     img = cv2.GaussianBlur(rgb, (0, 0), s.blur_sigma) if s.blur_sigma > 0.05 else rgb
     vignette = 1.0 - s.vignetting * falloff
     gain = cv2.merge([vignette * float(s.exposure * g) for g in s.white_balance])
     dy = int(rng.integers(0, NOISE_PAD))
     lit = cv2.multiply(img, gain, dtype=cv2.CV_32F)
-    out = cv2.add(cv2.scaleAdd(bank[dy:dy + h], float(s.noise_sigma), lit), 0.0, dtype=cv2.CV_8U)  # rounds, saturates
+    noise = bank[dy:dy + h] if bank.shape[1] == w else np.ascontiguousarray(bank[dy:dy + h, :w])  # rigs vary in size
+    out = cv2.add(cv2.scaleAdd(noise, float(s.noise_sigma), lit), 0.0, dtype=cv2.CV_8U)  # rounds, saturates
     if s.jpeg_quality:
         ok, buf = cv2.imencode(".jpg", cv2.cvtColor(out, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, s.jpeg_quality])
         if not ok:

@@ -9,6 +9,7 @@ config seed and the frame index), so generation parallelises across processes an
 
 from __future__ import annotations
 
+import math
 import multiprocessing as mp
 import os
 from pathlib import Path
@@ -17,7 +18,7 @@ import cv2
 import numpy as np
 
 from stages.data.backdrop import GroundBank, cloud_field, draw_look, ground_texture
-from stages.data.camera import camera_from_config
+from stages.data.camera import rig_cameras
 from stages.data.domain import DomainConfig
 from stages.data.render import build_tables, ego_vehicle, render_camera
 from stages.data.sensor import apply_sensor, draw_sensor, noise_bank
@@ -26,22 +27,31 @@ from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
 
 
 class FrameGenerator:
-    """Everything a process needs to render frames; per-camera tables and textures are built once."""
+    """Everything a process needs to render frames; a rig's per-camera tables are built once per process."""
 
     def __init__(self, cfg: dict, seed: int):
         self.cfg = cfg
         self.seed = int(seed)
+        self.ego = ego_vehicle(cfg["ego"])
+        # calibrations and 3D truth are written in ISO 8855's vehicle frame: origin under the rear axle
+        self.rear_axle = np.array([self.ego.wheels[0][2][0], 0.0, 0.0])
+        self._rig: tuple[int, list] | None = None  # (rig index, its cameras' tables): rigs change rarely
         self.stream = int(cfg.get("stream", 0))
         self.domain = DomainConfig.from_cfg(cfg.get("domain"))
-        w, h = cfg["image_size"]
-        cams = cfg["cameras"]
-        self.cameras = [camera_from_config(name, cams[name], w, h, cams["reference_size"]) for name in CAMERAS]
-        self.ego = ego_vehicle(cfg["ego"])
-        self.tables = [build_tables(cam, self.ego) for cam in self.cameras]
         self.sampler = SceneSampler(cfg["scenes"], self.domain, self.ego.length, self.ego.width)
         self.grounds = GroundBank(self.domain.grounds)
         self.clouds = cloud_field()
+        w, h = max_image_size(cfg)
         self.sensor_noise = noise_bank(w, h)
+
+    def tables(self, frame_id: int) -> list:
+        """The per-pixel tables of the frame's rig (``data.lens.frames_per_rig`` consecutive frames share
+        one rig: building a rig's tables costs about as much as rendering a frame)."""
+        rig = int(frame_id) // int(self.cfg["lens"]["frames_per_rig"])
+        if self._rig is None or self._rig[0] != rig:
+            cams = rig_cameras(self.cfg, self.seed, rig, CAMERAS)
+            self._rig = (rig, [build_tables(cam, self.ego) for cam in cams])
+        return self._rig[1]
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:
         """The frame's own random stream: a pure function of the seed, the dataset's stream (the held-out
@@ -57,16 +67,16 @@ class FrameGenerator:
         tex = ground_texture(self.grounds, look, scene)
         frame_domain = look.to_record() | scene_families(scene)
         out = []
-        for tables in self.tables:
+        for tables in self.tables(frame_id):
             rgb, _, vstats, wstats = render_camera(tables, scene, tex, look, self.clouds)
             sensor = draw_sensor(rng, d.sensor)
             img = apply_sensor(rgb, sensor, rng, self.sensor_noise, tables.falloff)
-            rec = self.labels(frame_id, tables.cam.name, scene, vstats, wstats, rng)
+            rec = self.labels(frame_id, tables.cam, scene, vstats, wstats, rng)
             rec.extra["domain"] = frame_domain | {"sensor": sensor.to_record()}
             out.append((tables.cam.name, img, rec))
         return out
 
-    def labels(self, frame_id, camera, scene, vstats, wstats, rng) -> Record:
+    def labels(self, frame_id, cam, scene, vstats, wstats, rng) -> Record:
         min_vis, min_px = self.cfg["min_visible_fraction"], self.cfg["min_box_px"]
 
         def annotated(st) -> bool:
@@ -94,11 +104,40 @@ class FrameGenerator:
                 a, b = (WHEEL, 4 * i + rear), (WHEEL, 4 * i + front)
                 if a in box_id and b in box_id:
                     pairs.append((box_id[a], box_id[b]))
-        w, h = self.cfg["image_size"]
         arr = np.array(sorted(boxes, key=lambda r: r[6]), dtype=np.float64).reshape(-1, 7)
-        return Record(image=image_path(camera, frame_id), frame_id=int(frame_id), camera=camera, width=int(w),
-                      height=int(h), boxes=arr, relations=relations, wheel_pairs=pairs, scene=scene.kind,
-                      extra={"layout": scene.layout})
+        extra = {"layout": scene.layout, "calibration": cam.shifted(self.rear_axle).calibration(),
+                 "objects_3d": self.objects_3d(scene, box_id)}
+        return Record(image=image_path(cam.name, frame_id), frame_id=int(frame_id), camera=cam.name,
+                      width=int(cam.width), height=int(cam.height), boxes=arr, relations=relations,
+                      wheel_pairs=pairs, scene=scene.kind, extra=extra)
+
+    def objects_3d(self, scene, box_id: dict) -> dict:
+        """3D truth of the annotated objects in the ISO 8855 vehicle frame (docs/design.md §4): vehicles as boxes,
+        wheels by their ground contact point (the middle of the tyre's footprint)."""
+        out = {}
+        for (cls, idx), bid in sorted(box_id.items(), key=lambda kv: kv[1]):
+            if cls == VEHICLE:
+                v = scene.vehicles[idx]
+                centre = v.to_ego(np.array([0.0, 0.0, v.height / 2])) - self.rear_axle
+                out[str(bid)] = {"center": [round(float(c), 4) for c in centre],
+                                 "size": [round(float(v.length), 4), round(float(v.width), 4), round(float(v.height), 4)],
+                                 "yaw": round(float(math.remainder(v.yaw, 2 * math.pi)), 5)}
+            else:
+                v = scene.vehicles[idx // 4]
+                _, _, (x, y) = v.wheels[idx % 4]
+                contact = v.to_ego(np.array([x, y, 0.0])) - self.rear_axle
+                out[str(bid)] = {"contact": [round(float(contact[0]), 4), round(float(contact[1]), 4)]}
+        return out
+
+
+def max_image_size(cfg: dict) -> tuple[int, int]:
+    """The largest image a rig of this config can have (the sensor-noise bank covers every size)."""
+    w, h = cfg["image_size"]
+    lens = cfg["lens"]
+    if not lens["randomise"]:
+        return int(w), int(h)
+    widest = 2 * round(w * max(lens["width_scales"]) / 2)
+    return widest, 2 * round(widest / min(lens["image_aspects"]) / 2)
 
 
 def scene_families(scene) -> dict:
@@ -158,6 +197,8 @@ def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, pr
     else:
         ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
         with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg, seed, str(out_dir))) as pool:
-            results = list(tqdm(pool.imap(_work, frames, chunksize=2), **bar))
+            # a chunk of one rig's frames: each process builds a rig's tables once
+            chunk = max(1, int(cfg["lens"]["frames_per_rig"]))
+            results = list(tqdm(pool.imap(_work, frames, chunksize=chunk), **bar))
     order = {c: i for i, c in enumerate(CAMERAS)}
     return sorted((r for recs in results for r in recs), key=lambda r: (r.frame_id, order[r.camera]))

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+from stages import paper
 from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
-# The paper's Table 3 (Wu et al.): it does not say whether per wheel or per image, so it is printed
-# beside both wheel_acc and image_acc.
-PAPER_TABLE3 = {"logic model (paper)": (92.91, 71.83, 79.90), "DeepWORD (paper)": (99.17, 94.35, 95.14)}
+# The paper's Table 3 does not say whether per wheel or per image, so it is printed beside both.
+PAPER_TABLE3 = {paper.TABLE3_LABELS[m]: tuple(acc[s] for s in SUBSETS) for m, acc in paper.TABLE3_ACCURACY.items()}
 PAPER_METRICS = ("wheel_acc", "image_acc")
 BOX_TITLES = {"gt": "ground-truth boxes", "detected": "detected boxes (end-to-end)"}
 

@@ -23,6 +23,11 @@ BASELINES_FILE = "baselines.json"
 SHIFT_DIR = "shift"   # the held-out domain's predictions and report
 
 
+def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
+    """Where a method's predictions on a box source are written (the bev stage reads them back)."""
+    return Path(pred_dir) / f"{boxes}_{method}.jsonl"
+
+
 def build_methods(ctx: EvalContext) -> dict[str, object]:
     """Instantiate (fit) the configured methods; a method whose inputs are absent is noted and skipped."""
     methods = {}
@@ -63,7 +68,7 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
         results[boxes] = {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}
-            write_records(pred_dir / f"{boxes}_{name}.jsonl", list(preds.values()))
+            write_records(predictions_file(pred_dir, boxes, name), list(preds.values()))
             results[boxes][name] = {s: score_records(recs, preds, min_px, iou).percentages()
                                     for s, recs in subsets.items()}
             if boxes == "gt":

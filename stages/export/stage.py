@@ -34,13 +34,12 @@ from stages.inference.runtime import (
     OnnxRelation,
     ort_session,
 )
+from stages.paper import DSP_LATENCY
 from stages.word_format import SUBSETS, load_image, open_dataset
 
 if TYPE_CHECKING:
     from stages.export.parity import ParityReport
 
-PAPER_MS_PER_IMG_B1 = 3.2     # DeepWORD on an embedded DSP (paper, Tables 1-2)
-PAPER_MS_PER_10IMG_B10 = 13.1
 
 
 def _limit(records: list, limit) -> list:
@@ -169,7 +168,7 @@ def latency_table(m: dict[str, float]) -> str:
         row("relation, onnxruntime, 1 thread, CPU time, static model padded", "static_cpu_"),
         f"| relation INT8, onnxruntime, real object counts | {r['int8_ms_per_img_b1']:.2f} | | "
         f"| {r['int8.size_mb']:.2f} |",
-        f"| paper (embedded DSP) | {PAPER_MS_PER_IMG_B1} | {PAPER_MS_PER_10IMG_B10} | | |",
+        f"| paper (embedded DSP) | {DSP_LATENCY['ms_per_img_b1']} | {DSP_LATENCY['ms_per_10img_b10']} | | |",
     ]
     if "export.detector.ms_per_img_b1" in m:
         rows += [

@@ -6,7 +6,11 @@ exported models in onnxruntime (torch is never imported on this path).
     deepword infer --dataset ROOT --out DIR --detect    on detected boxes (end to end)
 
 Options: ``--method deepword|deepword_int8|logic|logic_plus|prior`` (the baselines use the thresholds the
-pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--run RUN_ID`` picks the pipeline
+pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
+JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
+``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
+a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
+DIR``; docs/bev.md). ``--run RUN_ID`` picks the pipeline
 run whose artifacts to use (default: the newest finished one; see ``stages.inference.resolve``), or
 ``--export DIR`` [``--evaluate DIR``] name the stage output directories directly.
 
@@ -101,15 +105,60 @@ def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, loa
     return baseline_from_params(name, params[name], load_priors(dirs["export"] / PRIORS_FILE))
 
 
-def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record) -> Path:
+def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Path:
+    """The Fig. 5-style overlay; ``bev`` = (camera, estimates, contacts) adds the top view beside it."""
     import cv2
 
     from stages.overlay import draw_relations
 
     path = out_dir / OVERLAY_DIR / (Path(pred.image).with_suffix("").as_posix().replace("/", "__") + ".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(draw_relations(rgb, pred), cv2.COLOR_RGB2BGR))
+    image = draw_relations(rgb, pred)
+    if bev is not None:
+        from stages.bev.apply import beside_top_view
+
+        image = beside_top_view(image, *bev)
+    cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return path
+
+
+def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
+    """Footprints for every prediction with a camera (``--calibration`` or the record's own); returns the
+    predictions and {image: (camera, estimates, contacts)} for the overlays."""
+    from stages.bev.apply import CalibrationError, camera_of, footprints, load_prior, read_calibration_file
+
+    calibration = None
+    if args.calibration is not None:
+        sizes = {(p.width, p.height) for p in preds}
+        try:
+            calibration = read_calibration_file(args.calibration, *min(sizes)) if sizes else None
+        except CalibrationError as exc:
+            raise InferError(str(exc)) from None
+        if len(sizes) > 1:
+            raise InferError(f"{args.calibration}: one calibration for images of {len(sizes)} different sizes")
+    if calibration is None and not any("calibration" in p.extra for p in preds):
+        return preds, {}
+    bev_dir = args.bev if args.bev is not None else dirs.get("bev")
+    if bev_dir is None:
+        why = "footprints need the footprint prior of a bev stage: pass --bev DIR or a --run whose bev stage finished"
+        if args.calibration is not None:
+            raise InferError(why)
+        print(f"note: no bird's-eye-view footprints ({why})", file=sys.stderr)
+        return preds, {}
+    try:
+        prior = load_prior(bev_dir)
+    except CalibrationError as exc:
+        raise InferError(str(exc)) from None
+    out, views = [], {}
+    for pred in preds:
+        cam = camera_of(pred, calibration)
+        if cam is None:
+            out.append(pred)
+            continue
+        pred, estimates, contacts = footprints(pred, cam, prior)
+        out.append(pred)
+        views[pred.image] = (cam, estimates, contacts)
+    return out, views
 
 
 def infer(args) -> list[Record]:
@@ -144,10 +193,11 @@ def infer(args) -> list[Record]:
         records = [detector.detect(rgb_of(r), r) for r in records]
     method = build_method(args.method, dirs, root, args.threads, rgb_of)
     preds = [method.predict(r) for r in records]
+    preds, views = add_footprints(args, dirs, preds)
     args.out.mkdir(parents=True, exist_ok=True)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
-        write_overlay(args.out, rgb_of(pred), pred)
+        write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))
     return preds
 
 
@@ -167,6 +217,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", choices=CAMERAS, default="front", help="camera name written for loose images")
     p.add_argument("--overlays", type=int, default=0, help="with --dataset: overlays for the first N images")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    p.add_argument("--calibration", type=Path, help="WoodScape-style calibration JSON of the loose images' camera "
+                   "(footprints in bird's-eye view; a dataset's own `calibration` needs no flag)")
+    p.add_argument("--bev", type=Path, help="a bev stage output directory (its footprint prior; default: the run's)")
     return p
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from stages.checkpoints import best_and_latest
 from stages.lightning_logs import route_lightning_logs
+from stages.progress import lightning_progress
 from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
@@ -107,7 +108,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
-                 history]
+                 history, *lightning_progress("relation")]
     logger = _tracking_logger()
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
                         strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=tr.precision,

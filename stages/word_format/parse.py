@@ -11,6 +11,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from stages.format_3d import check_optional_3d
 from stages.word_format.record import CAMERAS, ROLES, VEHICLE, WHEEL, DatasetError, Record
 
 REQUIRED_KEYS = ("image", "frame_id", "camera", "width", "height", "boxes", "relations")
@@ -53,6 +54,7 @@ def parse_record(obj, file: str, line: int | None, root: Path | None = None, che
     cls_of = {int(b): int(c) for c, b in zip(boxes[:, 5], boxes[:, 6], strict=True)}
     relations = _relations(obj["relations"], cls_of, fail)
     pairs = _wheel_pairs(obj.get("wheel_pairs", []), cls_of, fail)
+    check_optional_3d(obj, cls_of, width, height, fail)  # calibration, objects_3d: only when present
 
     known = set(REQUIRED_KEYS) | {"scene", "wheel_pairs"}
     extra = {k: v for k, v in obj.items() if k not in known}

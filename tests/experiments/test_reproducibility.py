@@ -7,7 +7,8 @@ import json
 import subprocess
 
 import pytest
-from pipeline_runs import REPO, TINY, finish_pipeline, start_pipeline
+
+from tests.experiments.pipeline_runs import REPO, TINY, finish_pipeline, start_pipeline
 
 pytestmark = pytest.mark.slow
 

@@ -7,12 +7,12 @@ import json
 from pathlib import Path
 
 import pytest
-from make_corpus import Dataset, write_dataset
 from omegaconf import OmegaConf
 
 from stages.evaluate.methods import DETECTOR_PREDICTIONS, EvalContext, detected_boxes
 from stages.word_format import Dataset as WordDataset
 from stages.word_format import DatasetError, read_records
+from tests.reliability.make_corpus import Dataset, write_dataset
 
 
 def context(tmp_path: Path, prediction_lines: list[str]) -> EvalContext:

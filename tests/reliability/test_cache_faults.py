@@ -11,9 +11,9 @@ import socket
 import time
 
 import pytest
-from harness import complete_entries, run_in_process
 
 from pipeline.errors import PipelineError
+from tests.reliability.harness import complete_entries, run_in_process
 
 
 def free_port() -> int:

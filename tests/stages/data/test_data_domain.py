@@ -44,6 +44,7 @@ def test_the_split_holds_out_bodies_skies_and_grounds_disjointly(domains):
     assert {"bodies", "skies", "grounds"} <= set(held)
     for axis, families in held.items():
         assert not families & set(train["domain"][axis]), axis
+    assert not set(heldout["lens"]["families"]) & set(train["lens"]["families"])
     assert heldout["stream"] != train["stream"]  # other scenes, not the training frames re-dressed
 
 
@@ -81,6 +82,8 @@ def test_no_held_out_family_appears_in_training_data_and_only_held_out_ones_in_t
                     assert not values & families, (rec.image, axis, values)
                 else:
                     assert values <= families, (rec.image, axis, values)
+            lenses = set(cfg["lens"]["families"])
+            assert rec.extra["calibration"]["intrinsic"]["model"] in lenses
             assert set(drawn["sensor"]) == {"noise_sigma", "blur_sigma", "exposure", "white_balance", "vignetting",
                                             "jpeg_quality"}
 

@@ -5,7 +5,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
-from tiny_word import make_record
 
 from stages.evaluate.baselines import (
     CoupleRule,
@@ -30,6 +29,7 @@ from stages.evaluate.baselines import (
 from stages.metrics import score_records
 from stages.priors.mixture import Mixture1D, Priors, make_pair_prior
 from stages.word_format import Record
+from tests.stages.evaluate.tiny_word import make_record
 
 GRIDS = SearchGrids.from_cfg(OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids)
 

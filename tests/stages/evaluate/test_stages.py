@@ -6,13 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
-from tiny_word import build
 
 from stages.evaluate.methods import DETECTOR_PREDICTIONS
 from stages.evaluate.stage import run as run_evaluate
 from stages.priors.mixture import load_priors
 from stages.priors.stage import run as run_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
+from tests.stages.evaluate.tiny_word import build
 
 PRIORS_CFG = {"mode": "prior", "components": [1, 3], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
               "plot_bins": 30}

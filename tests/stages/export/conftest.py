@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
-from tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from tests.stages.export.tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 W, H = 160, 120
 def car_row(rng: np.random.Generator, n_cars: int):
@@ -138,9 +138,12 @@ def generated_images(tmp_path_factory) -> list[Path]:
 
     cfg = OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[3] / "conf/data/synword.yaml"), resolve=True)
     cfg["image_size"] = [320, 240]
+    cfg["lens"]["randomise"] = False  # the nominal rig: every image 320x240
     out = tmp_path_factory.mktemp("frame")
     paths = []
-    for camera, rgb, _ in FrameGenerator(cfg, seed=0).render_frame(0):
+    for camera, rgb, rec in FrameGenerator(cfg, seed=0).render_frame(0):
         paths.append(out / f"{camera}.png")
         cv2.imwrite(str(paths[-1]), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        # each camera's calibration as a WoodScape-style JSON file beside its image
+        (out / f"{camera}.json").write_text(json.dumps({**rec.extra["calibration"], "name": camera}))
     return paths

@@ -21,11 +21,11 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     """``pipeline.skip=[detector]`` (the paper tables' sweeps): export and evaluate run without it."""
     import pytest
     from omegaconf import OmegaConf
-    from tiny_models import EXPORT_CFG
 
     from stages.evaluate.stage import run as evaluate
     from stages.export.stage import run as export
     from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
+    from tests.stages.export.tiny_models import EXPORT_CFG
 
     relation_only = {k: v for k, v in upstream.items() if k != "detector"}
     out = tmp_path / "export"

@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
-import relation_data as rd
 import torch
 
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
 from stages.relation.inputs import InputConfig, node_tensor
 from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
+from tests.stages.relation import relation_data as rd
 
 torch.set_num_threads(1)
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import pytest
-import relation_data as rd
 import torch
 from omegaconf import OmegaConf
 
@@ -22,6 +21,7 @@ from stages.relation.lightning import (
     score_split,
 )
 from stages.relation.model import ModelConfig
+from tests.stages.relation import relation_data as rd
 
 torch.set_num_threads(1)
 TINY = ModelConfig(backbone="conv_fc", input_size=28, expansion=1, hidden=64, embed_dim=32, gat_hidden=32)
