@@ -62,10 +62,9 @@ def test_a_bad_augment_config_names_the_field():
 
 
 def test_training_graphs_keep_their_geometry_when_augmented():
-    from relation_data import records, split
-
     from stages.relation.inputs import InputConfig
     from stages.relation.lightning import GraphDataset
+    from tests.stages.relation.relation_data import records, split
 
     split = split(records(3), InputConfig(input_size=16, max_objects=32))
     torch.manual_seed(1)
