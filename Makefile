@@ -36,7 +36,7 @@ lint: setup
 	$(VENV)/bin/ruff check pipeline stages tests benchmarks
 
 ui: setup
-	$(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db --host 127.0.0.1 --port 5000
+	$(PY) -m pipeline.ui $(ARGS)
 
 clean:
 	rm -rf outputs multirun .deepword_cache mlflow.db mlflow.db.lock mlartifacts mlruns

@@ -92,7 +92,14 @@ class MlflowOps:
         from mlflow.entities import Dataset, DatasetInput
 
         dataset = Dataset(name=name, digest=digest[:DATASET_DIGEST_CHARS], source_type="local", source=source)
-        self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
+        try:
+            self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
+        except Exception as exc:
+            # MLflow looks the dataset up, then inserts it: a concurrent pipeline logging the same dataset
+            # can insert it in between. The second attempt finds that row and links it to this run.
+            if "UNIQUE constraint" not in str(exc) and "unique constraint" not in str(exc).lower():
+                raise
+            self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)

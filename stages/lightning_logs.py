@@ -4,11 +4,20 @@
 propagates to the root logger, which Hydra configures (console and the job's log file): every Lightning
 line ("GPU available", "`Trainer.fit` stopped") came out twice, once without the pipeline's format. (Its
 ``lightning.pytorch`` / ``lightning.fabric`` loggers, when imported before the root had handlers, print
-through handlers of their own and do not propagate: their lines never reached the job's log file.)"""
+through handlers of their own and do not propagate: their lines never reached the job's log file.)
+
+And Lightning's progress bar where it suits: on a terminal its own bar, elsewhere one line per epoch
+(``lightning_progress``)."""
 
 from __future__ import annotations
 
 import logging
+import sys
+import time
+
+from lightning.pytorch.callbacks import ProgressBar
+
+from stages.progress import on_terminal
 
 
 def route_lightning_logs() -> None:
@@ -23,3 +32,35 @@ def route_lightning_logs() -> None:
         for handler in list(logger.handlers):
             logger.removeHandler(handler)
         logger.propagate = True
+
+
+def lightning_progress(name: str, stream=None) -> list:
+    """Callbacks for ``Trainer(callbacks=...)``: none on a terminal (Lightning's own bar), else ``EpochLines``."""
+    return [] if on_terminal(stream) else [EpochLines(name, stream)]
+
+
+class EpochLines(ProgressBar):
+    """Lightning's progress bar slot filled with one line per training epoch: ``name``, the epoch, its logged
+    metrics and its time. A module-level class: DDP spawn pickles the Trainer's callbacks."""
+
+    def __init__(self, name: str, stream=None):
+        super().__init__()
+        self.name, self.stream = name, stream
+        self._enabled, self._started = True, 0.0
+
+    def disable(self) -> None:
+        self._enabled = False
+
+    def enable(self) -> None:
+        self._enabled = True
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        self._started = time.perf_counter()
+
+    def on_train_epoch_end(self, trainer, pl_module) -> None:
+        if not self._enabled or not trainer.is_global_zero:
+            return
+        metrics = " ".join(f"{k}={float(v):.4g}" for k, v in sorted(trainer.callback_metrics.items())
+                           if getattr(v, "numel", lambda: 1)() == 1)
+        print(f"{self.name} epoch {trainer.current_epoch + 1}/{trainer.max_epochs}: {metrics} "
+              f"({time.perf_counter() - self._started:.0f} s)", file=self.stream or sys.stderr, flush=True)

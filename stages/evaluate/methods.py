@@ -12,7 +12,7 @@ source is one function in ``BOX_SOURCES``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
@@ -26,7 +26,7 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
-from stages.word_format import Dataset, Record, read_records
+from stages.word_format import Dataset, Record, boxes_only, read_records
 
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
 
@@ -81,11 +81,6 @@ METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "deepword": deepword_onnx("deepword"),
     "deepword_int8": deepword_onnx("deepword_int8"),
 }
-
-
-def boxes_only(rec: Record) -> Record:
-    """The record's boxes without its relations or couples: what a method gets to see."""
-    return replace(rec, boxes=rec.boxes.copy(), relations=[], wheel_pairs=[])
 
 
 def gt_boxes(ctx: EvalContext) -> dict[str, Record]:

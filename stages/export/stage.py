@@ -34,8 +34,9 @@ from stages.inference.runtime import (
     OnnxRelation,
     ort_session,
 )
+from stages.metrics import score_records
 from stages.paper import DSP_LATENCY
-from stages.word_format import SUBSETS, load_image, open_dataset
+from stages.word_format import SUBSETS, boxes_only, load_image, open_dataset
 
 if TYPE_CHECKING:
     from stages.export.parity import ParityReport
@@ -80,15 +81,11 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict) -
 
 
 def wheel_acc_by_subset(ds, preds: dict, min_box_px: float) -> dict[str, float]:
-    from stages.metrics import score_records
-
     return {s: score_records(ds.subset(s), preds, min_box_px).percentages()["wheel_acc"] for s in SUBSETS}
 
 
 def int8_accuracy_change(ds, out_dir: Path, records: list, graphs: list, min_box_px: float) -> dict[str, float]:
     """wheel_acc (percent) of the FP32 and INT8 models on the test subsets and the change in points."""
-    from stages.evaluate.methods import boxes_only
-
     inputs = [boxes_only(r) for r in records]
     acc = {}
     for variant in ("dynamic", "int8"):

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.inference.runtime import METHOD_VARIANTS
-from stages.word_format import CAMERAS, DatasetError, Record, write_records
+from stages.word_format import CAMERAS, DatasetError, Record, boxes_only, write_records
 
 BASELINES = ("logic", "logic_plus", "prior")
 METHODS = (*METHOD_VARIANTS, *BASELINES)
@@ -166,7 +166,6 @@ def infer(args) -> list[Record]:
 
     dirs = resolve_dirs(args, need_detector=args.detect or args.dataset is None)
     if args.dataset is not None:
-        from stages.evaluate.methods import boxes_only
         from stages.evaluate.score import ScoreError, load_ground_truth
 
         try:

@@ -20,8 +20,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from stages.checkpoints import best_and_latest
-from stages.lightning_logs import route_lightning_logs
-from stages.progress import lightning_progress
+from stages.lightning_logs import lightning_progress, route_lightning_logs
 from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
@@ -75,6 +74,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     from stages.relation.curves import CurveHistory, plot_curves
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
     from stages.relation.model import ModelConfig, count_parameters, size_mb
+    from stages.replicas import check_replicas_agree
 
     route_lightning_logs()
     started = time.perf_counter()
@@ -117,7 +117,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                         enable_model_summary=False)
     last = ckpt_dir / "last.ckpt"
     trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
-    if not trainer.is_global_zero:
+    check_replicas_agree(module, "relation")
+    if not trainer.is_global_zero:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
 
     if not history.rows and last.is_file():  # ddp_spawn: the epochs ran in child processes

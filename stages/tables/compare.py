@@ -122,7 +122,7 @@ def bev_table(runs: list[RunRecord]) -> tuple[Table, dict]:
             cells = [m.get(f"bev.{boxes}.{method}.{pop}{k}") for pop in BEV_POPULATIONS for k in BEV_METRICS]
             if any(c is not None for c in cells):
                 rows.append([boxes, label, *cells])
-    notes = [f"Run {run.name!r} ({run.run_id}); vehicles within the run's bev.max_range_m of the ego's rear axle; "
+    notes = [f"Run {provenance(run)}, id {run.run_id}; vehicles within the run's bev.max_range_m of the ego's rear axle; "
              "errors in m and degrees (heading modulo 180), recall in %." if run else
              "No finished run with bev metrics: run `make pipeline` on a dataset with calibration."]
     return Table("Bird's-eye view: footprints from wheel contacts", header, rows, notes), \
@@ -296,7 +296,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
                | used_datasets | used_bev)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if results is not None:
-        write_results_page(results, [*tables, td], out_dir, scope)
+        write_results_page(results, [*tables, td, tb], out_dir, scope)
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",
                                 tags={COMPARISON_TAG: COMPARISON_KIND, "profile": profile or "all"})

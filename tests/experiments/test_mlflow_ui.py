@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.ui import experiment_url
 from tests.experiments.pipeline_runs import MlflowServer
 
 pytestmark = pytest.mark.slow
@@ -84,11 +85,13 @@ def test_ui_shows_experiment_parent_run_children_tags_metrics_and_report(smoke_s
     evaluate = next(r for r in runs if r.info.run_name == "evaluate")
     base = f"{ui.uri}/#/experiments/{exp.experiment_id}"
 
-    # The experiment's landing page (no /runs in the address) is its runs table, not MLflow 3's GenAI
-    # overview, and the Dataset column names the run's dataset.
-    browser.get(base)
+    # The experiment's landing page at the address `make ui` prints (no tab in it) is its runs table, not
+    # MLflow 3's GenAI overview, and the Dataset column names the run's dataset.
+    landing = experiment_url(ui.uri, smoke_store["uri"], "deepword")
+    assert landing == f"{base}?workflowType=machine_learning"
+    browser.get(landing)
     _page_shows(browser, ["deepword", "Run Name", "Dataset", "synword", parent.info.run_name[:12]])
-    assert "/runs" in browser.current_url and "traces" not in browser.current_url
+    assert "/runs?" in browser.current_url and "overview" not in browser.current_url
     browser.save_screenshot(str(tmp_path / "experiment.png"))
 
     browser.get(f"{base}/runs/{parent.info.run_id}")

@@ -101,3 +101,27 @@ def test_experiment_opens_on_training_runs_and_a_dataset_stage_is_the_runs_datas
     assert logged.dataset.source == str(Path(summary["stages"]["a"]["output_dir"]).resolve())
     stage_b = client.get_run(summary["stages"]["b"]["mlflow_run_id"])
     assert not stage_b.inputs.dataset_inputs  # only the parent run, only for the declared stage
+
+
+def test_a_dataset_another_pipeline_inserted_meanwhile_is_linked_on_the_second_attempt(toy):
+    """MLflow looks a dataset up and then inserts it; a concurrent pipeline can insert it in between."""
+    from pipeline.mlflow_ops import MlflowOps
+
+    ops = MlflowOps(toy.db_uri, "toy")
+    run_id = ops.create_run("r", {})
+    real, calls = ops.client.log_inputs, []
+
+    def racing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("(sqlite3.IntegrityError) UNIQUE constraint failed: datasets.experiment_id")
+        return real(*args, **kwargs)
+
+    ops.client.log_inputs = racing
+    ops.log_dataset(run_id, "toyset", "f" * 64, "/data")
+    assert len(calls) == 2
+    (logged,) = ops.client.get_run(run_id).inputs.dataset_inputs
+    assert (logged.dataset.name, logged.dataset.digest) == ("toyset", "f" * 36)
+    ops.client.log_inputs = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("disk I/O error"))
+    with pytest.raises(RuntimeError, match="disk I/O error"):  # any other failure is not retried
+        ops.log_dataset(run_id, "toyset", "e" * 64, "/data")

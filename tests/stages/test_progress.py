@@ -4,7 +4,8 @@ import io
 
 import torch
 
-from stages.progress import lightning_progress, on_terminal, progress_lines
+from stages.lightning_logs import lightning_progress
+from stages.progress import on_terminal, progress_lines
 
 
 class FakeTerminal(io.StringIO):
@@ -47,3 +48,6 @@ def test_training_without_a_terminal_prints_one_line_per_epoch():
     assert [line.split(":")[0] for line in lines] == ["tiny epoch 1/3", "tiny epoch 2/3", "tiny epoch 3/3"]
     assert "train/loss=" in lines[0] and "\r" not in log.getvalue()
     assert lightning_progress("tiny", FakeTerminal()) == []  # a terminal keeps Lightning's own bar
+    import pickle
+
+    pickle.loads(pickle.dumps(lightning_progress("tiny")))  # DDP spawn pickles the Trainer's callbacks

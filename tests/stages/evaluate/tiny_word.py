@@ -8,39 +8,17 @@ from pathlib import Path
 import numpy as np
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from tests.car_rows import CarRows
 
 W, H = 160, 120
 
 
-def car_row(rng: np.random.Generator, n_cars: int) -> tuple[np.ndarray, list, list]:
-    """Boxes, relations and couples of ``n_cars`` side-view cars at random depths."""
-    boxes, relations, pairs, bid = [], [], [], 0
-    for _ in range(n_cars):
-        s = rng.uniform(0.45, 1.0)                     # nearness: size and how low the car sits
-        vw, vh = 90 * s, 38 * s
-        bottom = 60 + 55 * s
-        x1 = rng.uniform(-0.2 * vw, W - 0.8 * vw)
-        v = [max(x1, 0), bottom - vh, min(x1 + vw, W), bottom]
-        d = 0.42 * vh                                   # wheel diameter
-        wheel_boxes = [[x1 + 0.12 * vw, bottom - d, x1 + 0.12 * vw + d, bottom],
-                       [x1 + 0.88 * vw - d, bottom - d, x1 + 0.88 * vw, bottom]]
-        vid = bid
-        boxes.append(v + [1.0, 0, vid])
-        bid += 1
-        ids = []
-        for wb in wheel_boxes:
-            if wb[0] >= 0 and wb[2] <= W:
-                boxes.append(wb + [1.0, 1, bid])
-                relations.append((vid, bid, None))
-                ids.append(bid)
-                bid += 1
-        if len(ids) == 2:
-            pairs.append((ids[0], ids[1]))
-    return np.array(boxes, dtype=np.float64), relations, pairs
+SCENES = CarRows(W, H, car=(90, 38), nearness=(0.45, 1.0), bottom=(60, 55), overhang=0.2, wheel_inset=0.12,
+                 roles=False)
 
 
 def make_record(rng: np.random.Generator, frame: int, n_cars: int, camera: str = "left") -> Record:
-    boxes, relations, pairs = car_row(rng, n_cars)
+    boxes, relations, pairs = SCENES.car_row(rng, n_cars)
     return Record(image=f"images/{camera}/{frame:05d}.png", frame_id=frame, camera=camera, width=W, height=H,
                   boxes=boxes, relations=relations, wheel_pairs=pairs, scene="parking")
 

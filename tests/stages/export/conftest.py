@@ -15,25 +15,11 @@ import torch
 from omegaconf import OmegaConf
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from tests.car_rows import CarRows
 from tests.stages.export.tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 W, H = 160, 120
-def car_row(rng: np.random.Generator, n_cars: int):
-    boxes, relations, pairs = [], [], []
-    for _ in range(n_cars):
-        s = rng.uniform(0.5, 1.0)
-        vw, vh, bottom = 80 * s, 34 * s, 50 + 60 * s
-        x1 = rng.uniform(0, W - vw)
-        vid = len(boxes)
-        boxes.append([x1, bottom - vh, x1 + vw, bottom, 1.0, 0, vid])
-        d = 0.42 * vh
-        ids = []
-        for role, left in (("rear", x1 + 0.1 * vw), ("front", x1 + 0.9 * vw - d)):
-            ids.append(len(boxes))
-            boxes.append([left, bottom - d, left + d, bottom, 1.0, 1, ids[-1]])
-            relations.append((vid, ids[-1], role))
-        pairs.append((ids[0], ids[1]))
-    return np.array(boxes, dtype=np.float64), relations, pairs
+SCENES = CarRows(W, H, car=(80, 34), nearness=(0.5, 1.0), bottom=(50, 60))
 
 
 def draw(rec: Record, seed: int) -> np.ndarray:
@@ -53,7 +39,7 @@ def build_dataset(root: Path, n: int = 14, seed: int = 0) -> Path:
     rng = np.random.default_rng(seed)
     records = []
     for i in range(n):
-        boxes, relations, pairs = car_row(rng, int(rng.integers(1, 6)))
+        boxes, relations, pairs = SCENES.car_row(rng, int(rng.integers(1, 6)))
         rec = Record(image=f"images/left/{i:05d}.png", frame_id=i, camera="left", width=W, height=H, boxes=boxes,
                      relations=relations, wheel_pairs=pairs, scene="parking")
         (root / rec.image).parent.mkdir(parents=True, exist_ok=True)

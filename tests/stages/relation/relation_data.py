@@ -8,37 +8,16 @@ import numpy as np
 
 from stages.relation.inputs import InputConfig, SplitInputs, build_split
 from stages.word_format import Record
+from tests.car_rows import CarRows
 
 W, H = 192, 128
 
 
-def car_row(rng: np.random.Generator, n_cars: int, stray_wheel: bool = False):
-    boxes, relations, pairs = [], [], []
-    for _ in range(n_cars):
-        s = rng.uniform(0.5, 1.0)
-        vw, vh = 100 * s, 42 * s
-        bottom = 60 + 60 * s
-        x1 = rng.uniform(0, W - vw)
-        vid = len(boxes)
-        boxes.append([x1, bottom - vh, x1 + vw, bottom, 1.0, 0, vid])
-        d = 0.42 * vh
-        rear = [x1 + 0.1 * vw, bottom - d, x1 + 0.1 * vw + d, bottom]
-        front = [x1 + 0.9 * vw - d, bottom - d, x1 + 0.9 * vw, bottom]
-        ids = []
-        for role, wb in (("rear", rear), ("front", front)):
-            bid = len(boxes)
-            boxes.append(wb + [1.0, 1, bid])
-            relations.append((vid, bid, role))
-            ids.append(bid)
-        pairs.append((ids[0], ids[1]))
-    if stray_wheel:  # a wheel without owner (e.g. a spare wheel lying around)
-        bid = len(boxes)
-        boxes.append([W - 20.0, 4.0, W - 8.0, 16.0, 1.0, 1, bid])
-    return np.array(boxes, dtype=np.float64), relations, pairs
+SCENES = CarRows(W, H, car=(100, 42), nearness=(0.5, 1.0), bottom=(60, 60))
 
 
 def make_record(rng: np.random.Generator, index: int, n_cars: int, stray_wheel: bool = False) -> Record:
-    boxes, relations, pairs = car_row(rng, n_cars, stray_wheel)
+    boxes, relations, pairs = SCENES.car_row(rng, n_cars, stray_wheel)
     return Record(image=f"images/left/{index:05d}.png", frame_id=index, camera="left", width=W, height=H,
                   boxes=boxes, relations=relations, wheel_pairs=pairs, scene="parking", source=("test", index + 1))
 
