@@ -1,5 +1,7 @@
 """The ``data`` stage: generate (``data=synword``) or validate (``data=word``) a WORD-style dataset, split it
 by frame into train/val/test with easy/hard/mixed test subsets, and report docs/design.md §7's dataset metrics.
+The ``shift_data`` stage builds the cross-domain benchmark's held-out test set (``shift.data``, a
+data-like config drawing only held-out families) the same way; its metrics are ``data.shift.test.*``.
 
 Output directory: ``dataset.json`` (where the labels and images are), ``splits.json``, and for synthetic
 data ``labels.jsonl`` + ``images/``; ``artifacts/contact_sheet.png`` shows a few frames with their labels.
@@ -19,12 +21,20 @@ SHEET_FRAMES = 3
 
 
 def run(cfg, inputs: dict, out_dir: Path) -> dict[str, float]:
-    dcfg = OmegaConf.to_container(cfg.data, resolve=True)
-    out_dir = Path(out_dir)
+    return build_dataset(OmegaConf.to_container(cfg.data, resolve=True), int(cfg.seed), Path(out_dir))
+
+
+def run_heldout(cfg, inputs: dict, out_dir: Path) -> dict[str, float]:
+    """The held-out test set of the cross-domain benchmark; only its test split is reported."""
+    metrics = build_dataset(OmegaConf.to_container(cfg.shift.data, resolve=True), int(cfg.seed), Path(out_dir))
+    return {k.replace("data.", "data.shift.", 1): v for k, v in metrics.items() if k.startswith("data.test.")}
+
+
+def build_dataset(dcfg: dict, seed: int, out_dir: Path) -> dict[str, float]:
     if dcfg["name"] == "synword":
         from stages.data.synword import generate
 
-        records = generate(dcfg, int(cfg.seed), out_dir, workers=dcfg.get("workers"))
+        records = generate(dcfg, seed, out_dir, workers=dcfg.get("workers"))
         if not records:
             raise DatasetError(out_dir / LABELS_FILE, None, "<file>", "the generator kept no image (none had a relation)")
         write_records(out_dir / LABELS_FILE, records)
@@ -34,7 +44,7 @@ def run(cfg, inputs: dict, out_dir: Path) -> dict[str, float]:
         records = read_records(root / LABELS_FILE, root=root, check_images=True)
     else:
         raise ValueError(f"unknown data source {dcfg['name']!r} (data=synword or data=word)")
-    splits = make_splits(records, dcfg["split"], int(cfg.seed), int(dcfg["max_easy_vehicles"]))
+    splits = make_splits(records, dcfg["split"], seed, int(dcfg["max_easy_vehicles"]))
     write_dataset_index(out_dir, root, splits)
     (out_dir / "artifacts").mkdir(exist_ok=True)
     frame_sheet(root, records, SHEET_FRAMES, out_dir / "artifacts" / "contact_sheet.png")

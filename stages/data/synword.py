@@ -17,17 +17,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stages.data.backdrop import GroundBank, cloud_field, draw_look, ground_texture
 from stages.data.camera import rig_cameras
-from stages.data.render import (
-    TEX_HALF,
-    TEX_RES,
-    build_tables,
-    ego_vehicle,
-    finish,
-    ground_texture,
-    noise_bank,
-    render_camera,
-)
+from stages.data.domain import DomainConfig
+from stages.data.render import build_tables, ego_vehicle, render_camera
+from stages.data.sensor import apply_sensor, draw_sensor, noise_bank
 from stages.data.world import SceneSampler
 from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
 
@@ -42,14 +36,13 @@ class FrameGenerator:
         # calibrations and 3D truth are written in ISO 8855's vehicle frame: origin under the rear axle
         self.rear_axle = np.array([self.ego.wheels[0][2][0], 0.0, 0.0])
         self._rig: tuple[int, list] | None = None  # (rig index, its cameras' tables): rigs change rarely
-        self.sampler = SceneSampler(cfg["scenes"], self.ego.length, self.ego.width)
-        n = int(round(2 * TEX_HALF / TEX_RES))
-        blotches = np.random.default_rng(12345).normal(0, 1, (n // 16, n // 16)).astype(np.float32)
-        fine = np.random.default_rng(54321).normal(0, 1, (n, n)).astype(np.float32)
+        self.stream = int(cfg.get("stream", 0))
+        self.domain = DomainConfig.from_cfg(cfg.get("domain"))
+        self.sampler = SceneSampler(cfg["scenes"], self.domain, self.ego.length, self.ego.width)
+        self.grounds = GroundBank(self.domain.grounds)
+        self.clouds = cloud_field()
         w, h = max_image_size(cfg)
-        self.sensor_noise = noise_bank(w, h, cfg["render"]["noise_sigma"])
-        self.noise = np.clip(128 + 9 * cv2.resize(blotches, (n, n), interpolation=cv2.INTER_CUBIC) + 5 * fine,
-                             0, 255).astype(np.uint8)
+        self.sensor_noise = noise_bank(w, h)
 
     def tables(self, frame_id: int) -> list:
         """The per-pixel tables of the frame's rig (``data.lens.frames_per_rig`` consecutive frames share
@@ -61,23 +54,25 @@ class FrameGenerator:
         return self._rig[1]
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:
-        return np.random.default_rng(np.random.SeedSequence([self.seed, int(frame_id)]))
+        """The frame's own random stream: a pure function of the seed, the dataset's stream (the held-out
+        dataset draws other scenes than the in-domain one) and the frame index."""
+        return np.random.default_rng(np.random.SeedSequence([self.seed, self.stream, int(frame_id)]))
 
     def render_frame(self, frame_id: int):
         """-> list of (camera name, RGB uint8 image, Record) for the frame's four cameras."""
         rng = self.frame_rng(frame_id)
         scene = self.sampler.sample(rng)
-        rcfg = self.cfg["render"]
-        sun_az, sun_el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(25, 65))
-        sun = np.array([math.cos(sun_az) * math.cos(sun_el), math.sin(sun_az) * math.cos(sun_el), math.sin(sun_el)])
-        tex = ground_texture(scene, self.noise, sun)
-        skyline = rng.uniform(3, 25, 72).astype(np.float32) * (rng.random(72) < 0.8)
-        skyline_rgb = (rng.uniform(0.3, 0.65, (72, 1)) * rng.uniform(0.9, 1.1, (72, 3))).astype(np.float32)
+        d = self.domain
+        look = draw_look(rng, d.draw(rng, "skies"), d.draw(rng, "grounds"), d.sun_elevation_deg)
+        tex = ground_texture(self.grounds, look, scene)
+        frame_domain = look.to_record() | scene_families(scene)
         out = []
         for tables in self.tables(frame_id):
-            rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun)
-            img = finish(rgb, rng, self.sensor_noise, rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
+            rgb, _, vstats, wstats = render_camera(tables, scene, tex, look, self.clouds)
+            sensor = draw_sensor(rng, d.sensor)
+            img = apply_sensor(rgb, sensor, rng, self.sensor_noise, tables.falloff)
             rec = self.labels(frame_id, tables.cam, scene, vstats, wstats, rng)
+            rec.extra["domain"] = frame_domain | {"sensor": sensor.to_record()}
             out.append((tables.cam.name, img, rec))
         return out
 
@@ -145,6 +140,15 @@ def max_image_size(cfg: dict) -> tuple[int, int]:
     return widest, 2 * round(widest / min(lens["image_aspects"]) / 2)
 
 
+def scene_families(scene) -> dict:
+    """The families a frame's scene drew on each object axis (recorded per image, checked by the tests that
+    keep held-out families out of training data)."""
+    vs = scene.vehicles
+    return {"bodies": sorted({v.kind for v in vs}), "paints": sorted({v.paint for v in vs}),
+            "materials": sorted({v.material for v in vs}), "wheels": sorted({v.wheel_look.style for v in vs}),
+            "props": sorted({p.kind for p in scene.props})}
+
+
 def image_path(camera: str, frame_id: int) -> str:
     return f"images/{camera}/{frame_id:06d}.png"
 
@@ -182,6 +186,7 @@ def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, pr
     in frame, camera order. ``workers`` processes (default: all cores); 1 renders in this process."""
     from tqdm import tqdm
 
+    DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
     n = int(cfg["frames"])
     workers = max(1, min(int(workers or os.cpu_count() or 1), n))
     frames = range(n)

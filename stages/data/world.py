@@ -7,111 +7,25 @@ from free flow to jams in adjacent lanes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-# (length, width, height, wheel radius) ranges per vehicle type; wheelbase and track follow the size.
-VEHICLE_TYPES = {
-    "car": {"length": (3.7, 4.8), "width": (1.65, 1.85), "height": (1.38, 1.52), "wheel_r": (0.29, 0.33)},
-    "suv": {"length": (4.3, 5.0), "width": (1.82, 2.0), "height": (1.62, 1.82), "wheel_r": (0.34, 0.39)},
-    "van": {"length": (4.8, 5.6), "width": (1.9, 2.05), "height": (1.9, 2.35), "wheel_r": (0.32, 0.36)},
-}
-
-PAINT = np.array([  # common car colours (RGB 0..1)
-    [0.92, 0.92, 0.93], [0.08, 0.08, 0.09], [0.55, 0.56, 0.58], [0.75, 0.76, 0.78], [0.60, 0.08, 0.07],
-    [0.10, 0.20, 0.50], [0.15, 0.30, 0.20], [0.80, 0.70, 0.50], [0.35, 0.22, 0.15], [0.85, 0.55, 0.10],
-    [0.30, 0.45, 0.65], [0.95, 0.85, 0.20],
-])
-
-
-@dataclass
-class Vehicle:
-    """A vehicle standing on the ground. Local frame: x forward, y left, z up, origin on the ground below
-    the body centre. Body = lower box + cabin (greenhouse) box; four wheels, outer faces flush with the body."""
-
-    kind: str
-    x: float
-    y: float
-    yaw: float
-    length: float
-    width: float
-    height: float
-    wheel_r: float
-    wheelbase: float
-    front_overhang: float
-    colour: np.ndarray
-    clearance: float
-    belt: float           # height of the lower body's top (bonnet / window sill)
-    cabin_len: float
-    cabin_x: float        # cabin centre along x (local)
-    wheel_w: float = 0.22
-    wheels: list = field(default_factory=list)  # filled by __post_init__
-
-    def __post_init__(self):
-        xf = self.length / 2 - self.front_overhang
-        xr = xf - self.wheelbase
-        yw = self.width / 2 - self.wheel_w / 2 + 0.02  # slightly proud of the body: arches show the tyre
-        # (axle, side, local centre): rear first on each side, the order wheel_pairs use
-        self.wheels = [("rear", "left", (xr, yw)), ("front", "left", (xf, yw)),
-                       ("rear", "right", (xr, -yw)), ("front", "right", (xf, -yw))]
-
-    @property
-    def rotation(self) -> np.ndarray:
-        """Columns = local axes in the ego frame (local -> ego)."""
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def to_ego(self, local: np.ndarray) -> np.ndarray:
-        return np.asarray(local) @ self.rotation.T + np.array([self.x, self.y, 0.0])
-
-    def parts(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """Body boxes as (name, centre in ego frame, half extents in the local frame)."""
-        lower = np.array([0.0, 0.0, (self.clearance + self.belt) / 2])
-        lower_h = np.array([self.length / 2, self.width / 2, (self.belt - self.clearance) / 2])
-        cabin = np.array([self.cabin_x, 0.0, (self.belt + self.height) / 2])
-        cabin_h = np.array([self.cabin_len / 2, self.width / 2 - 0.08, (self.height - self.belt) / 2])
-        return [("lower", self.to_ego(lower), lower_h), ("cabin", self.to_ego(cabin), cabin_h)]
-
-    def wheel_centre(self, i: int) -> np.ndarray:
-        _, _, (x, y) = self.wheels[i]
-        return self.to_ego(np.array([x, y, self.wheel_r]))
-
-    def bounds_half(self) -> np.ndarray:
-        """Half extents of a local box (centred at height/2) holding every part."""
-        return np.array([self.length / 2, self.width / 2 + 0.03, self.height / 2])
-
-
-def make_vehicle(rng: np.random.Generator, kind: str, x: float, y: float, yaw: float) -> Vehicle:
-    spec = VEHICLE_TYPES[kind]
-    u = rng.random()  # one size factor: bigger cars are also wider, with longer wheelbases
-    length = spec["length"][0] + u * (spec["length"][1] - spec["length"][0])
-    width = spec["width"][0] + (0.6 * u + 0.4 * rng.random()) * (spec["width"][1] - spec["width"][0])
-    height = spec["height"][0] + rng.random() * (spec["height"][1] - spec["height"][0])
-    wheel_r = spec["wheel_r"][0] + (0.5 * u + 0.5 * rng.random()) * (spec["wheel_r"][1] - spec["wheel_r"][0])
-    wheelbase = length * rng.uniform(0.58, 0.63)
-    front_overhang = (length - wheelbase) * rng.uniform(0.5, 0.6)
-    belt = {"car": 0.92, "suv": 1.05, "van": 1.05}[kind] + rng.uniform(-0.05, 0.05)
-    if kind == "van":
-        cabin_len, cabin_x = length * 0.82, -length * 0.07
-    else:
-        cabin_len = length * rng.uniform(0.46, 0.56)
-        cabin_x = -length * rng.uniform(0.04, 0.1)
-    colour = PAINT[rng.integers(len(PAINT))] * rng.uniform(0.85, 1.1)
-    return Vehicle(kind=kind, x=x, y=y, yaw=yaw, length=length, width=width, height=height, wheel_r=wheel_r,
-                   wheelbase=wheelbase, front_overhang=front_overhang, colour=np.clip(colour, 0, 1),
-                   clearance=wheel_r * rng.uniform(0.55, 0.8), belt=belt, cabin_len=cabin_len, cabin_x=cabin_x,
-                   wheel_w=0.18 + 0.08 * u)
+from stages.data.bodies import Vehicle, make_vehicle
+from stages.data.domain import DomainConfig
+from stages.data.footprint import footprint, separated
+from stages.data.props import Prop, place_props
 
 
 @dataclass
 class Marking:
-    """A painted stripe on the ground: a segment (x0, y0) -> (x1, y1) of a width (m); dashed if dash > 0."""
+    """A painted stripe on the ground: a segment (x0, y0) -> (x1, y1) of a width (m); dashed if dash > 0;
+    colour None: the frame's marking paint (white or yellow, drawn per frame)."""
 
     p0: tuple[float, float]
     p1: tuple[float, float]
     width: float = 0.12
-    colour: tuple[float, float, float] = (0.85, 0.85, 0.82)
+    colour: tuple[float, float, float] | None = None
     dash: float = 0.0
 
 
@@ -121,17 +35,17 @@ class Scene:
     layout: str
     vehicles: list[Vehicle]
     markings: list[Marking]
-    asphalt: np.ndarray
+    props: list[Prop]
 
 
 class SceneSampler:
-    """Draws scenes from the configured mix. ``cfg`` is the ``data.scenes`` config (plain dict)."""
+    """Draws scenes from the configured mix. ``cfg`` is the ``data.scenes`` config (plain dict); ``domain``
+    says which body families, paints, materials, wheel styles and props the scene may hold."""
 
-    def __init__(self, cfg: dict, ego_length: float, ego_width: float):
+    def __init__(self, cfg: dict, domain: DomainConfig, ego_length: float, ego_width: float):
         self.cfg = cfg
+        self.domain = domain
         self.ego_half = (ego_length / 2, ego_width / 2)
-        self.types = list(cfg["vehicle_types"])
-        self.type_p = _normalised(cfg["vehicle_types"])
 
     def sample(self, rng: np.random.Generator) -> Scene:
         kind = _choice(rng, self.cfg["mix"])
@@ -139,18 +53,23 @@ class SceneSampler:
         vehicles, markings = getattr(self, f"_{kind}_{layout}")(rng)
         vehicles = _without_overlaps([v for v in vehicles if math.hypot(v.x, v.y) < self.cfg["max_range"]
                                       and self._clear_of_ego(v)])
-        asphalt = np.array([0.34, 0.34, 0.35]) * rng.uniform(0.75, 1.2) + rng.uniform(-0.03, 0.03, 3)
-        return Scene(kind=kind, layout=layout, vehicles=vehicles, markings=markings, asphalt=np.clip(asphalt, 0, 1))
+        d = self.domain
+        n_props = int(rng.integers(d.props_per_frame[0], d.props_per_frame[1] + 1)) if d.props else 0
+        props = place_props(rng, d.props, n_props, d.props_near_vehicles, vehicles, [self._ego_footprint(0.3)],
+                            self.cfg["max_range"])
+        return Scene(kind=kind, layout=layout, vehicles=vehicles, markings=markings, props=props)
 
     def _vehicle(self, rng, x, y, yaw) -> Vehicle:
-        kind = self.types[rng.choice(len(self.types), p=self.type_p)]
-        return make_vehicle(rng, kind, x, y, yaw)
+        d = self.domain
+        return make_vehicle(rng, d.draw(rng, "bodies"), x, y, yaw, paint=d.draw(rng, "paints"),
+                            material=d.draw(rng, "materials"), wheel_style=d.draw(rng, "wheels"))
+
+    def _ego_footprint(self, grow: float) -> np.ndarray:
+        return footprint(0.0, 0.0, 0.0, self.ego_half[0] + grow, self.ego_half[1] + grow)
 
     def _clear_of_ego(self, v: Vehicle) -> bool:
-        """Reject a vehicle whose footprint (inflated by 0.25 m) would touch the ego (separating axis test)."""
-        a = _footprint(0.0, 0.0, 0.0, self.ego_half[0] + 0.25, self.ego_half[1] + 0.25)
-        b = _footprint(v.x, v.y, v.yaw, v.length / 2, v.width / 2)
-        return _separated(a, b)
+        """Reject a vehicle whose footprint would touch the ego inflated by 0.25 m (separating axis test)."""
+        return separated(self._ego_footprint(0.25), footprint(v.x, v.y, v.yaw, v.length / 2, v.width / 2))
 
     # --- parking ----------------------------------------------------------------------------------
     def _row(self, rng, origin, along, facing, n_slots, pitch, angle, occupancy, skip=()) -> list[Vehicle]:
@@ -349,26 +268,9 @@ def _without_overlaps(vehicles: list[Vehicle]) -> list[Vehicle]:
     """Drop any vehicle whose footprint touches one already kept (jittered bays can collide)."""
     kept, prints = [], []
     for v in vehicles:
-        fp = _footprint(v.x, v.y, v.yaw, v.length / 2 + 0.05, v.width / 2 + 0.05)
-        near = [p for k, p in zip(kept, prints, strict=True) if math.hypot(k.x - v.x, k.y - v.y) < 6.0]
-        if all(_separated(fp, p) for p in near):
+        fp = footprint(v.x, v.y, v.yaw, v.length / 2 + 0.05, v.width / 2 + 0.05)
+        near = [p for k, p in zip(kept, prints, strict=True) if math.hypot(k.x - v.x, k.y - v.y) < (k.length + v.length) / 2 + 1.0]
+        if all(separated(fp, p) for p in near):
             kept.append(v)
             prints.append(fp)
     return kept
-
-
-def _footprint(x, y, yaw, hx, hy) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    corners = np.array([[hx, hy], [hx, -hy], [-hx, -hy], [-hx, hy]])
-    return corners @ np.array([[c, s], [-s, c]]) + np.array([x, y])
-
-
-def _separated(a: np.ndarray, b: np.ndarray) -> bool:
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pa, pb = a @ axis, b @ axis
-            if pa.max() < pb.min() or pb.max() < pa.min():
-                return True
-    return False

@@ -33,7 +33,9 @@ DETECTOR_PREDICTIONS = "predictions_test.jsonl"
 
 @dataclass
 class EvalContext:
-    """What method factories and box sources may use: the evaluate config, inputs, dataset and priors."""
+    """What method factories and box sources may use: the evaluate config, inputs, the dataset scored, the
+    dataset whose train split the baselines are fitted on (``fit_dataset``, default: the scored one; the
+    held-out domain is scored with baselines fitted in-domain) and priors."""
 
     cfg: object            # the `eval` config subtree
     seed: int
@@ -41,11 +43,12 @@ class EvalContext:
     dataset: Dataset
     priors: object         # stages.priors.mixture.Priors
     notes: list[str] = field(default_factory=list)
+    fit_dataset: Dataset | None = None
 
     @cached_property
     def train(self) -> list[TrainImage]:
-        return prepare_train(self.dataset.subset("train"), float(self.cfg.min_box_px), int(self.cfg.fit_images),
-                             self.seed)
+        fit = self.fit_dataset or self.dataset
+        return prepare_train(fit.subset("train"), float(self.cfg.min_box_px), int(self.cfg.fit_images), self.seed)
 
     @cached_property
     def grids(self) -> SearchGrids:
@@ -86,8 +89,8 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
 
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     """Detections of the test split: from the exported detector in onnxruntime when the export stage is
-    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``; None
-    when the run has no detector."""
+    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl`` (of the
+    in-domain dataset only); None when the run has no detector."""
     if "export" in ctx.inputs:
         from stages.inference.runtime import NoDetectorError, OnnxDetector
         from stages.word_format import load_image
@@ -97,7 +100,7 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
         except NoDetectorError:
             return None
         return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
-    if "detector" not in ctx.inputs:
+    if "detector" not in ctx.inputs or ctx.fit_dataset is not None:
         return None
     path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS
     records = read_records(path, root=ctx.dataset.root, allow_empty=True)

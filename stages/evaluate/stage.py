@@ -1,6 +1,8 @@
 """The `evaluate` stage: every configured method on every available box source, scored on the
 easy / hard / mixed test subsets; report.json, report.md, fitted baseline parameters, predictions and a
-gallery of disagreements."""
+gallery of disagreements. With the held-out domain's dataset among its inputs (``shift_data``) it scores
+every row there too, with the same fitted baselines and models: ``eval.shift.*``, ``detector.shift.*``,
+``shift/report.md``."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 
 BASELINES_FILE = "baselines.json"
+SHIFT_DIR = "shift"   # the held-out domain's predictions and report
 
 
 def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
@@ -39,17 +42,15 @@ def build_methods(ctx: EvalContext) -> dict[str, object]:
     return methods
 
 
-def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
-    ecfg, seed = cfg.eval, int(cfg.seed)
-    ds = open_dataset(inputs["data"])
-    ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=load_priors(inputs["priors"]))
-    methods = build_methods(ctx)
+def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict, list]:
+    """Every method on every box source over ``ctx.dataset``'s test subsets: (results, ground-truth-box
+    predictions per method, detections of the test split or None)."""
+    ecfg, ds = ctx.cfg, ctx.dataset
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     subsets = {s: ds.subset(s) for s in SUBSETS}
-
     results: dict = {}
     gt_predictions: dict[str, dict] = {}
-    pred_dir = out_dir / "predictions"
+    detections = None
     pred_dir.mkdir(parents=True, exist_ok=True)
     for boxes in ecfg.box_sources:
         if boxes not in BOX_SOURCES:
@@ -59,6 +60,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
             ctx.notes.append(f"`{boxes}` boxes skipped: this run has no detector (not an input of evaluate, "
                              "or left out with pipeline.skip)")
             continue
+        if boxes == "detected":
+            detections = list(inputs_by_image.values())
         for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
             inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],
                                                           wheel_pairs=[]))
@@ -70,11 +73,28 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                                     for s, recs in subsets.items()}
             if boxes == "gt":
                 gt_predictions[name] = preds
+    return results, gt_predictions, detections
 
-    sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_px)) for r in recs)}
-             for s, recs in subsets.items()}
+
+def subset_sizes(ds, min_px: float) -> dict:
+    return {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_px)) for r in recs)}
+            for s, recs in ((s, ds.subset(s)) for s in SUBSETS)}
+
+
+def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
+    ecfg, seed = cfg.eval, int(cfg.seed)
+    ds = open_dataset(inputs["data"])
+    priors = load_priors(inputs["priors"])
+    ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=priors)
+    methods = build_methods(ctx)
+    min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
+    results, gt_predictions, _ = score_dataset(ctx, methods, out_dir / "predictions")
+    sizes = subset_sizes(ds, min_px)
     report = {"results": results, "sizes": sizes, "notes": ctx.notes, "paper_table3": PAPER_TABLE3,
               "min_box_px": min_px, "match_iou": iou}
+    metrics = flatten(results)
+    if "shift_data" in inputs:
+        metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations"))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
@@ -85,6 +105,31 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     artifacts.mkdir(exist_ok=True)
     for name in ("report.md", "report.json", BASELINES_FILE):
         shutil.copy(out_dir / name, artifacts / name)
+    if "shift_data" in inputs:
+        for name in ("report.md", "report.json"):
+            shutil.copy(out_dir / SHIFT_DIR / name, artifacts / f"shift_{name}")
     test = ds.subset("test")
     write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images), min_px)
-    return flatten(results)
+    return metrics
+
+
+def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
+    """Every row on the held-out domain's test set, baselines fitted on the in-domain train split as for
+    the in-domain rows: ``eval.shift.<boxes>.<method>.<subset>.<metric>`` and, with detections,
+    ``detector.shift.{ap50,ap}.<class>``; ``out_dir`` gets the predictions and report.md/json."""
+    from stages.detector.stage import ap_metrics
+
+    shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
+                            fit_dataset=ctx.dataset)
+    shift_ctx.train = ctx.train  # the same fitting sample: the held-out set has no train split
+    results, _, detections = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
+    min_px = float(ctx.cfg.min_box_px)
+    sizes = subset_sizes(heldout, min_px)
+    (out_dir / "report.json").write_text(json.dumps({"results": results, "sizes": sizes, "notes": shift_ctx.notes},
+                                                    indent=1))
+    (out_dir / "report.md").write_text(render_markdown(results, sizes, shift_ctx.notes,
+                                                       "Held-out domain: owner-member relations"))
+    metrics = {k.replace("eval.", "eval.shift.", 1): v for k, v in flatten(results).items()}
+    if detections is not None:
+        metrics |= ap_metrics(detections, heldout.subset("test"), "shift", min_px)
+    return metrics

@@ -8,6 +8,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 from torchmetrics import Metric
 
+from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
     allowed_owners,
     decode_couples,
@@ -32,15 +33,17 @@ class GraphDataset(Dataset):
     max_objects: padding never changes real outputs, and most images hold far fewer objects, so the
     backbone, the N x N graph part and the copies all shrink). ``hflip``: probability of mirroring an
     image's graph left-right (crops flipped, x coordinates mirrored); distance ratios, adjacency,
-    targets and roles are unchanged by it."""
+    targets and roles are unchanged by it. ``augment``: appearance augmentation of the crops
+    (``augment.augment_crops``), for training only."""
 
-    def __init__(self, split: SplitInputs, hflip: float = 0.0):
+    def __init__(self, split: SplitInputs, hflip: float = 0.0, augment: AugmentConfig | None = None):
         self.split = split
         self.crops = torch.from_numpy(split.crops)
         self.offsets = split.offsets
         self.tensors = {k: torch.from_numpy(getattr(split, k)) for k in
                         ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role", "evaluated")}
         self.hflip = hflip
+        self.augment = augment if augment is not None and augment.active else None
 
     def __len__(self) -> int:
         return len(self.split)
@@ -57,6 +60,8 @@ class GraphDataset(Dataset):
             coords = item["coords"].clone()
             coords[:, 0], coords[:, 2] = 1.0 - item["coords"][:, 2], 1.0 - item["coords"][:, 0]
             item["coords"] = coords
+        if self.augment is not None:
+            crops = augment_crops(crops, self.augment)
         item["crops"] = crops
         return item
 
@@ -80,14 +85,15 @@ def collate_graphs(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tens
 
 
 class RelationDataModule(L.LightningDataModule):
-    def __init__(self, train: SplitInputs, val: SplitInputs, batch_size: int, hflip: float = 0.0):
+    def __init__(self, train: SplitInputs, val: SplitInputs, batch_size: int, hflip: float = 0.0,
+                 augment: AugmentConfig | None = None):
         super().__init__()
         self.train_split, self.val_split = train, val
-        self.batch_size, self.hflip = batch_size, hflip
+        self.batch_size, self.hflip, self.augment = batch_size, hflip, augment
 
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(GraphDataset(self.train_split, self.hflip), batch_size=self.batch_size, shuffle=True,
-                          collate_fn=collate_graphs)
+        return DataLoader(GraphDataset(self.train_split, self.hflip, self.augment), batch_size=self.batch_size,
+                          shuffle=True, collate_fn=collate_graphs)
 
     def val_dataloader(self) -> DataLoader:
         return DataLoader(GraphDataset(self.val_split), batch_size=self.batch_size, collate_fn=collate_graphs)

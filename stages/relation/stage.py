@@ -21,6 +21,7 @@ from pathlib import Path
 
 from stages.checkpoints import best_and_latest
 from stages.lightning_logs import lightning_progress, route_lightning_logs
+from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.word_format import load_image, open_dataset
 
@@ -101,7 +102,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     plain = OmegaConf.to_container(rel, resolve=True)
     module = RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
                             optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)})
-    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip))
+    augment = AugmentConfig.from_cfg(plain.get("augment"))
+    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment)
     ckpt_dir = out_dir / "checkpoints"
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()

@@ -17,8 +17,9 @@ def split_by_frame(records: list[Record], fractions: dict[str, float], seed: int
     total = sum(fractions[s] for s in SPLITS)
     n_val = round(len(frames) * fractions["val"] / total)
     n_test = round(len(frames) * fractions["test"] / total)
-    if len(frames) >= 3:
-        n_val, n_test = max(n_val, 1), max(n_test, 1)
+    if len(frames) >= 3:  # every split asked for gets a frame; a split of fraction 0 stays empty
+        n_val = max(n_val, 1) if fractions["val"] > 0 else 0
+        n_test = max(n_test, 1) if fractions["test"] > 0 else 0
     split_of = {}
     for i, f in enumerate(frames):
         split_of[f] = "test" if i < n_test else "val" if i < n_test + n_val else "train"

@@ -100,3 +100,15 @@ def test_unknown_method_is_an_error(chain, tmp_path):
     cfg = OmegaConf.create({"eval": dict(EVAL_CFG, methods=["oracle"]), "seed": 0})
     with pytest.raises(ValueError, match="unknown method 'oracle'"):
         run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
+
+
+def test_evaluate_stage_scores_the_held_out_domain_beside_the_in_domain_rows(chain, tmp_path):
+    """The same dataset as `data` and as `shift_data`: every eval.shift row equals its in-domain row."""
+    _, data, priors_dir, _ = chain
+    cfg = OmegaConf.create({"eval": dict(EVAL_CFG, box_sources=["gt"], gallery_images=0), "seed": 0})
+    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "shift_data": data}, tmp_path)
+    in_domain = {k: v for k, v in metrics.items() if k.startswith("eval.gt.")}
+    shifted = {k.replace("eval.shift.", "eval.", 1): v for k, v in metrics.items() if k.startswith("eval.shift.")}
+    assert in_domain and shifted == in_domain
+    assert "Held-out domain" in (tmp_path / "shift" / "report.md").read_text()
+    assert (tmp_path / "artifacts" / "shift_report.md").is_file()

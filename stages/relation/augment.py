@@ -1,0 +1,146 @@
+"""Appearance augmentation of the node crops in relation training (``relation.augment``).
+
+The crops carry the look of the training renderer (its paints, skies, sensor); the relation is geometric.
+Randomising the crops' appearance (photometric jitter, white balance, grayscale, blur, noise, JPEG, a zoom
+about the crop centre) and now and then blanking a crop's pixels makes the network lean on what transfers
+to other domains. Each crop draws its own effects from torch's global generator, which the relation
+stage seeds (``relation.train.seed``), so training stays reproducible. Boxes, graphs and targets are
+untouched: every effect keeps the box where it is in the crop (the zoom is about the centre, small).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+GREY_WEIGHTS = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    prob: float = 0.0                  # share of crops augmented at all (0: off)
+    brightness: float = 0.0            # gain in 1 +- this
+    contrast: float = 0.0              # contrast factor in 1 +- this
+    saturation: float = 0.0            # saturation factor in 1 +- this
+    channel_gain: float = 0.0          # per-channel gain (white balance) in 1 +- this
+    grayscale: float = 0.0             # probability of a grey crop
+    blur_prob: float = 0.0
+    blur_sigma: tuple[float, float] = (0.5, 1.5)
+    noise_prob: float = 0.0
+    noise_sigma: tuple[float, float] = (2.0, 10.0)   # grey levels
+    jpeg_prob: float = 0.0
+    jpeg_quality: tuple[int, int] = (30, 90)
+    scale: tuple[float, float] = (1.0, 1.0)          # zoom about the crop centre (> 1: closer)
+    drop_pixels: float = 0.0           # probability of a blank crop (the box geometry planes remain)
+
+    def __post_init__(self):
+        for name in ("prob", "grayscale", "blur_prob", "noise_prob", "jpeg_prob", "drop_pixels"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"relation.augment.{name} must be a probability in [0, 1], got {getattr(self, name)}")
+        for name in ("brightness", "contrast", "saturation", "channel_gain"):
+            if not 0 <= getattr(self, name) < 1:
+                raise ValueError(f"relation.augment.{name} must be in [0, 1), got {getattr(self, name)}")
+        for name in ("blur_sigma", "noise_sigma", "jpeg_quality", "scale"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"relation.augment.{name} must be [min, max] with 0 <= min <= max, got {[lo, hi]}")
+        if self.scale[0] <= 0 or self.jpeg_quality[1] > 100 or self.jpeg_quality[0] < 1:
+            raise ValueError("relation.augment: scale must be > 0 and jpeg_quality within [1, 100]")
+
+    @classmethod
+    def from_cfg(cls, aug: dict | None) -> AugmentConfig:
+        """From the plain ``relation.augment`` dict (absent or null: no augmentation)."""
+        if aug is None:
+            return cls()
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(aug) - known)
+        if unknown:
+            raise ValueError(f"relation.augment: unknown fields {unknown}; known: {sorted(known)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in aug.items()})
+
+    @property
+    def active(self) -> bool:
+        return self.prob > 0
+
+
+def _uniform(n: int, lo: float, hi: float) -> torch.Tensor:
+    return lo + (hi - lo) * torch.rand(n)
+
+
+def _chosen(n: int, p: float) -> torch.Tensor:
+    return torch.rand(n) < p
+
+
+def _gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    radius = max(1, int(math.ceil(2 * sigma)))
+    t = torch.arange(-radius, radius + 1, dtype=x.dtype)
+    k = torch.exp(-0.5 * (t / sigma) ** 2)
+    k = k / k.sum()
+    c = x.shape[1]
+    x = F.conv2d(F.pad(x, (radius, radius, 0, 0), mode="replicate"), k.view(1, 1, 1, -1).repeat(c, 1, 1, 1), groups=c)
+    return F.conv2d(F.pad(x, (0, 0, radius, radius), mode="replicate"), k.view(1, 1, -1, 1).repeat(c, 1, 1, 1), groups=c)
+
+
+def _jpeg(crop: torch.Tensor, quality: int) -> torch.Tensor:
+    import cv2  # deferred: only augmented training loads it here
+
+    img = np.ascontiguousarray(crop.permute(1, 2, 0).numpy())
+    ok, buf = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("OpenCV could not JPEG-encode a relation crop")
+    return torch.from_numpy(np.ascontiguousarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1])).permute(2, 0, 1)
+
+
+def augment_crops(crops: torch.Tensor, cfg: AugmentConfig) -> torch.Tensor:
+    """(k, 3, S, S) uint8 crops -> augmented (k, 3, S, S) uint8; a share ``cfg.prob`` of them is changed."""
+    k = len(crops)
+    if k == 0 or not cfg.active:
+        return crops
+    sel = _chosen(k, cfg.prob)
+    if not sel.any():
+        return crops
+    idx = torch.nonzero(sel).flatten()
+    n = len(idx)
+    x = crops[idx].to(torch.float32)
+    if cfg.scale != (1.0, 1.0):  # zoom about the centre: the box stays centred, its size in the crop changes
+        zoom = _uniform(n, *cfg.scale)
+        theta = torch.zeros(n, 2, 3)
+        theta[:, 0, 0] = theta[:, 1, 1] = 1.0 / zoom
+        grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+        x = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    grey = (x * GREY_WEIGHTS).sum(1, keepdim=True)
+    if cfg.saturation > 0:
+        s = _uniform(n, 1 - cfg.saturation, 1 + cfg.saturation).view(n, 1, 1, 1)
+        x = grey + (x - grey) * s
+    if cfg.contrast > 0:
+        c = _uniform(n, 1 - cfg.contrast, 1 + cfg.contrast).view(n, 1, 1, 1)
+        mean = grey.mean(dim=(2, 3), keepdim=True)
+        x = mean + (x - mean) * c
+    gain = _uniform(n, 1 - cfg.brightness, 1 + cfg.brightness).view(n, 1, 1, 1)
+    if cfg.channel_gain > 0:
+        gain = gain * _uniform(3 * n, 1 - cfg.channel_gain, 1 + cfg.channel_gain).view(n, 3, 1, 1)
+    x = x * gain
+    if cfg.grayscale > 0:
+        g = _chosen(n, cfg.grayscale).view(n, 1, 1, 1)
+        x = torch.where(g, (x * GREY_WEIGHTS).sum(1, keepdim=True).expand_as(x), x)
+    if cfg.blur_prob > 0:
+        for i in torch.nonzero(_chosen(n, cfg.blur_prob)).flatten().tolist():
+            x[i:i + 1] = _gaussian_blur(x[i:i + 1], float(_uniform(1, *cfg.blur_sigma)))
+    if cfg.noise_prob > 0:
+        noisy = _chosen(n, cfg.noise_prob).view(n, 1, 1, 1)
+        sigma = _uniform(n, *cfg.noise_sigma).view(n, 1, 1, 1)
+        x = x + torch.randn_like(x) * sigma * noisy
+    out = x.round().clamp(0, 255).to(torch.uint8)
+    if cfg.jpeg_prob > 0:
+        lo, hi = cfg.jpeg_quality
+        for i in torch.nonzero(_chosen(n, cfg.jpeg_prob)).flatten().tolist():
+            out[i] = _jpeg(out[i], int(torch.randint(int(lo), int(hi) + 1, ())))
+    if cfg.drop_pixels > 0:
+        out[_chosen(n, cfg.drop_pixels)] = 0
+    result = crops.clone()
+    result[idx] = out
+    return result

@@ -1,0 +1,76 @@
+"""Appearance augmentation of the relation crops: seeded, shape- and geometry-preserving, configurable."""
+
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from stages.relation.augment import AugmentConfig, augment_crops
+
+CONF = Path(__file__).resolve().parents[3] / "conf" / "relation" / "default.yaml"
+
+
+def configured(**changes) -> AugmentConfig:
+    aug = OmegaConf.to_container(OmegaConf.load(CONF).augment)
+    return AugmentConfig.from_cfg(aug | changes)
+
+
+def sample_crops(n=12, size=24) -> torch.Tensor:
+    g = torch.Generator().manual_seed(3)
+    return torch.randint(0, 256, (n, 3, size, size), generator=g, dtype=torch.uint8)
+
+
+def test_probability_zero_leaves_crops_untouched():
+    crops = sample_crops()
+    assert augment_crops(crops, configured(prob=0.0)) is crops
+
+
+def test_augmentation_is_seeded_and_keeps_shape_and_dtype():
+    crops = sample_crops()
+    cfg = configured(prob=1.0)
+    torch.manual_seed(5)
+    a = augment_crops(crops, cfg)
+    torch.manual_seed(5)
+    b = augment_crops(crops, cfg)
+    torch.manual_seed(6)
+    c = augment_crops(crops, cfg)
+    assert a.shape == crops.shape and a.dtype == torch.uint8
+    assert torch.equal(a, b) and not torch.equal(a, c) and not torch.equal(a, crops)
+
+
+def test_each_effect_alone_changes_the_crops():
+    crops = sample_crops()
+    effects = {"brightness": {"brightness": 0.5}, "grayscale": {"grayscale": 1.0}, "blur": {"blur_prob": 1.0},
+               "noise": {"noise_prob": 1.0}, "jpeg": {"jpeg_prob": 1.0, "jpeg_quality": [20, 20]},
+               "scale": {"scale": [1.3, 1.3]}, "drop": {"drop_pixels": 1.0}}
+    for name, change in effects.items():
+        cfg = AugmentConfig(prob=1.0, **{k: tuple(v) if isinstance(v, list) else v for k, v in change.items()})
+        torch.manual_seed(0)
+        out = augment_crops(crops, cfg)
+        assert not torch.equal(out, crops), name
+    grey = augment_crops(crops, AugmentConfig(prob=1.0, grayscale=1.0))
+    assert torch.equal(grey[:, 0], grey[:, 1]) and torch.equal(grey[:, 1], grey[:, 2])
+    assert not augment_crops(crops, AugmentConfig(prob=1.0, drop_pixels=1.0)).any()
+
+
+def test_a_bad_augment_config_names_the_field():
+    with pytest.raises(ValueError, match="relation.augment.grayscale"):
+        configured(grayscale=1.5)
+    with pytest.raises(ValueError, match="unknown fields \\['hue'\\]"):
+        configured(hue=0.1)
+
+
+def test_training_graphs_keep_their_geometry_when_augmented():
+    from stages.relation.inputs import InputConfig
+    from stages.relation.lightning import GraphDataset
+    from tests.stages.relation.relation_data import records, split
+
+    split = split(records(3), InputConfig(input_size=16, max_objects=32))
+    torch.manual_seed(1)
+    plain, augmented = GraphDataset(split), GraphDataset(split, augment=configured(prob=1.0))
+    a, b = plain[0], augmented[0]
+    for key in a:
+        if key != "crops":
+            assert torch.equal(a[key], b[key]), key
+    assert a["crops"].shape == b["crops"].shape and not torch.equal(a["crops"], b["crops"])
