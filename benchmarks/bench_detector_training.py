@@ -1,0 +1,107 @@
+"""Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
+against bf16 autocast, channels_last, and both, in the same process on the same batches.
+
+    python -m benchmarks.bench_detector_training [--threads 2] [--steps 6] [--batch 8]
+
+The network is the default config's CenterNet (conf/detector, tiny backbone), freshly initialised; the
+batch is the quick profile's training crop (320x256) with random images and real CenterNet targets.
+Variants are interleaved step by step (fp32, bf16, channels_last, both, fp32, ...) so that the load other
+processes put on a shared machine falls on all of them alike; the medians' ratios against fp32 are the
+figures to trust, the absolute rates depend on the load. bf16 is only timed where the CPU runs it natively
+(``stages.precision.cpu_has_native_bf16``): elsewhere emulated bf16 is slower and the stages train in fp32.
+The ratio is printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import statistics
+import time
+
+import numpy as np
+
+from benchmarks.bench_latency import default_configs
+
+
+def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) -> dict:
+    import torch
+
+    from stages.detector.model import CLASS_NAMES, DOWN_RATIO
+    from stages.detector.targets import centernet_targets
+
+    rng = np.random.default_rng(seed)
+    items = []
+    for _ in range(batch):
+        x1 = rng.uniform(0, width - 40, 12)
+        y1 = rng.uniform(0, height - 30, 12)
+        boxes = np.column_stack([x1, y1, x1 + rng.uniform(8, 40, 12), y1 + rng.uniform(8, 30, 12)])
+        items.append(centernet_targets(boxes / DOWN_RATIO, rng.integers(0, 2, 12), len(CLASS_NAMES),
+                                       width // DOWN_RATIO, height // DOWN_RATIO, 12, det["min_overlap"]))
+    out = {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
+    out["image"] = torch.from_numpy(rng.standard_normal((batch, 3, height, width)).astype(np.float32))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=6, help="timed steps per variant (after one warm-up)")
+    parser.add_argument("--batch", type=int, default=8)
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from stages.detector.losses import centernet_loss
+    from stages.detector.model import build_centernet, model_config
+    from stages.precision import cpu_has_native_bf16
+
+    torch.set_num_threads(args.threads)
+    _, det = default_configs()
+    width, height = 320, 256
+    batch = make_batch(det, args.batch, width, height)
+    native_bf16 = cpu_has_native_bf16()
+    variants = {"fp32": (False, False), "channels_last": (False, True)}
+    if native_bf16:
+        variants |= {"bf16": (True, False), "bf16 + channels_last": (True, True)}
+
+    state = {}
+    for name, (_, channels_last) in variants.items():
+        torch.manual_seed(0)
+        net = build_centernet(model_config(det)).train()
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        net = net.to(memory_format=fmt)
+        state[name] = (net, torch.optim.AdamW(net.parameters(), lr=1e-4), batch["image"].contiguous(memory_format=fmt))
+
+    def step(name: str) -> float:
+        bf16, _ = variants[name]
+        net, opt, images = state[name]
+        start = time.perf_counter()
+        autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+        with autocast:
+            loss, _ = centernet_loss(net(images), batch, **det["loss"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        return time.perf_counter() - start
+
+    times: dict[str, list[float]] = {name: [] for name in variants}
+    for name in variants:
+        step(name)  # warm-up: oneDNN primitive creation
+    for _ in range(args.steps):
+        for name in variants:
+            times[name].append(step(name))
+
+    print(f"CPU native bf16: {native_bf16}; threads {args.threads}; batch {args.batch} at {width}x{height}; "
+          f"median of {args.steps} interleaved steps")
+    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
+    fp32 = statistics.median(times["fp32"])
+    for name, ts in times.items():
+        median = statistics.median(ts)
+        print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
+    if not native_bf16:
+        print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
+
+
+if __name__ == "__main__":
+    main()
