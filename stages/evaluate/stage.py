@@ -13,11 +13,20 @@ from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
 from stages.evaluate.metrics import evaluated_wheel_ids, score_records
-from stages.evaluate.report import PAPER_TABLE3, flatten, render_markdown
+from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 
 BASELINES_FILE = "baselines.json"
+
+
+def detector_entry(inputs: dict[str, Path]) -> dict | None:
+    """The export bundle's detector entry (AP, operating point), or None without an export or a detector."""
+    if "export" not in inputs:
+        return None
+    from stages.export.runtime import read_bundle
+
+    return read_bundle(inputs["export"]).get("detector")
 
 
 def build_methods(ctx: EvalContext) -> dict[str, object]:
@@ -71,7 +80,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     report = {"results": results, "sizes": sizes, "notes": ctx.notes, "paper_table3": PAPER_TABLE3,
               "min_box_px": min_px, "match_iou": iou}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations"))
+    lead = headline_markdown(results, detector_entry(inputs))
+    (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
+                                                       lead))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
         {name: baseline_params(m) for name, m in methods.items() if name in ("logic", "logic_plus", "prior")},
         indent=1))
@@ -82,4 +93,4 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         shutil.copy(out_dir / name, artifacts / name)
     test = ds.subset("test")
     write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images), min_px)
-    return flatten(results)
+    return {**headline_metrics(results), **flatten(results)}

@@ -23,6 +23,7 @@ from stages.checkpoints import best_and_latest
 from stages.lightning_logs import route_lightning_logs
 from stages.precision import BF16, FP32, resolve_precision
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
+from stages.relation.simulate import DetectionNoise, with_simulated_detections
 from stages.word_format import load_image, open_dataset
 
 WEIGHTS_FILE = "relation.pt"
@@ -87,8 +88,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     model_cfg = ModelConfig.from_cfg(rel)
     check_object_counts(ds.records, in_cfg.max_objects)  # every split: export uses the same padding
     cache_dir = out_dir / "inputs"
-    train = split_inputs("train", _limit(ds.subset("train"), rel.train.limit_train_images), ds.root, in_cfg,
-                         priors, cache_dir)
+    noise = DetectionNoise.from_cfg(rel.train.get("detection_noise"))
+    train_records = with_simulated_detections(_limit(ds.subset("train"), rel.train.limit_train_images), noise,
+                                              int(rel.train.seed), in_cfg.max_objects)
+    train = split_inputs("train", train_records, ds.root, in_cfg, priors, cache_dir)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
                        cache_dir)
     if len(train) == 0 or len(val) == 0:
