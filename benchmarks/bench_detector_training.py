@@ -1,5 +1,7 @@
 """Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
-against bf16 autocast, channels_last, and both, in the same process on the same batches.
+against bf16 autocast, channels_last, and both, in the same process on the same batches; and the relation
+network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
+against fp32.
 
     python -m benchmarks.bench_detector_training [--threads 2] [--steps 6] [--batch 8]
 
@@ -101,6 +103,63 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
     if not native_bf16:
         print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
+        return
+    relation_step_ratio(args.steps)
+
+
+def relation_step_ratio(steps: int, images: int = 16) -> None:
+    """The relation stage's training step (default config, 16 images of the quick profile's object counts)
+    with the backbone in fp32 and in bf16, interleaved; prints graphs/s and the ratio."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from benchmarks.bench_latency import TEST_OBJECT_COUNTS, random_graphs
+    from stages.relation.inputs import InputConfig
+    from stages.relation.lightning import RelationModule, collate_graphs
+    from stages.relation.model import ModelConfig
+
+    rel, _ = default_configs()
+    cfg = OmegaConf.create(rel)
+    in_cfg, model_cfg = InputConfig.from_cfg(cfg), ModelConfig.from_cfg(cfg)
+    graphs = random_graphs(TEST_OBJECT_COUNTS[:images], in_cfg.input_size)
+    items = []
+    for g in graphs:
+        n = len(g.classes)
+        items.append({"crops": torch.from_numpy(g.crops), "coords": torch.from_numpy(g.coords),
+                      "classes": torch.from_numpy(g.classes).long(), "valid": torch.from_numpy(g.valid),
+                      "adj": torch.from_numpy(g.adj), "cand": torch.from_numpy(g.cand),
+                      "owner": torch.zeros((n, n), dtype=torch.uint8), "couple": torch.zeros((n, n), dtype=torch.uint8),
+                      "role": torch.full((n,), -1, dtype=torch.long)})
+    batch = collate_graphs(items)
+    modules = {}
+    for name, bf16 in (("fp32", False), ("bf16 backbone", True)):
+        torch.manual_seed(0)
+        module = RelationModule(model=dict(model_cfg.__dict__), loss=rel["loss"], decode=rel["decode"],
+                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=bf16).train()
+        modules[name] = (module, torch.optim.AdamW(module.parameters(), lr=1e-3))
+
+    def step(name: str) -> float:
+        module, opt = modules[name]
+        start = time.perf_counter()
+        loss = module._loss(module(batch), batch)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        return time.perf_counter() - start
+
+    times: dict[str, list[float]] = {name: [] for name in modules}
+    for name in modules:
+        step(name)
+    for _ in range(steps):
+        for name in modules:
+            times[name].append(step(name))
+    fp32 = statistics.median(times["fp32"])
+    print(f"\nrelation network ({model_cfg.backbone}, {in_cfg.input_size}x{in_cfg.input_size} crops), "
+          f"{images} images of {sum(len(g.classes) for g in graphs)} objects per step")
+    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
+    for name, ts in times.items():
+        median = statistics.median(ts)
+        print(f"{name:<22} {1000 * median:8.0f} {images / median:9.1f} {fp32 / median:7.2f}x")
 
 
 if __name__ == "__main__":
