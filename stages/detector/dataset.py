@@ -18,7 +18,14 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from stages.detector.augment import crop_or_pad, flip_image, flip_record, photometric_jitter, rescale, sensor_effects
+from stages.detector.augment import (
+    crop_or_pad,
+    flip_image,
+    flip_record,
+    photometric_jitter,
+    rescale,
+    sensor_effects,
+)
 from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image, normalise
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
 from stages.detector.targets import centernet_targets
