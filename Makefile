@@ -27,7 +27,7 @@ datasets: setup
 	$(PY) -m pipeline experiment=datasets $(ARGS)
 
 compare: setup
-	$(PY) -m pipeline.compare $(ARGS)
+	$(PY) -m stages.tables --results docs/results.md $(ARGS)
 
 bench: setup
 	$(PY) -m benchmarks $(ARGS)

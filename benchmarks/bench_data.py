@@ -1,5 +1,5 @@
 """Synthetic data generation speed: images per second, and the projected time of the full profile's
-9,000 images (2,250 frames x 4 cameras) on 2 cores against its 10-minute target (issue 2).
+9,000 images (2,250 frames x 4 cameras) on 2 cores against its 10-minute target.
 
 Frames are rendered in this process (no pool) and timed by both wall clock and this process' CPU time:
 on a shared machine the CPU time gives the per-core rate the wall clock hides; the projection assumes
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> dict:
     per_core = renders / cpu
     projected = FULL_RENDERS / (CORES * per_core)
     w, h = cfg["image_size"]
-    print(f"bench_data: {renders} renders ({kept} kept) at {w}x{h}: {renders / wall:.1f} images/s wall, "
+    print(f"bench_data: {renders} renders ({kept} kept) around {w}x{h} (lens and size drawn per camera): {renders / wall:.1f} images/s wall, "
           f"{per_core:.1f} images/s per CPU-second (one process)")
     print(f"bench_data: projected full profile ({FULL_RENDERS} images) on {CORES} cores: {projected:.0f} s = "
           f"{projected / TARGET_S:.2f} x the {TARGET_S:.0f} s target")

@@ -1,4 +1,4 @@
-"""No-op re-run time (DESIGN §9: an all-hit re-run <= 3 s wall; issue 2: warm <= 10 % of cold).
+"""No-op re-run time (docs/design.md §9: an all-hit re-run <= 3 s wall; warm <= 10 % of cold).
 
 1. A toy six-stage DAG shaped like the real one (data -> priors -> relation -> export -> evaluate, and
    detector), each stage a few milliseconds, run through the real CLI (`python -m pipeline` with
@@ -24,7 +24,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_S = 3.0
-TOY_STAGES = {  # name: inputs, like DESIGN §1
+TOY_STAGES = {  # name: inputs, like docs/design.md §1
     "data": [], "priors": ["data"], "detector": ["data"], "relation": ["data", "priors"],
     "export": ["detector", "relation"], "evaluate": ["data", "priors", "relation", "detector"],
 }

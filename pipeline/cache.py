@@ -1,4 +1,4 @@
-"""The content-addressed stage cache (DESIGN §8).
+"""The content-addressed stage cache (docs/design.md §8).
 
 Layout under the cache directory::
 

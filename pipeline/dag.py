@@ -13,7 +13,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset"}
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,7 @@ class StageSpec:
     watch: tuple[str, ...]
     checks: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (config key, rules): see pipeline.checks
     optional: tuple[str, ...] = ()  # inputs the stage can run without (when pipeline.skip leaves them out)
+    dataset: str | None = None  # the output is a dataset of this name: an MLflow dataset input of the run
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -71,6 +72,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         watch=_str_list(name, "watch", node.get("watch")),
         checks=parse_checks(name, node.get("checks")),
         optional=optional,
+        dataset=None if node.get("dataset") is None else str(node.get("dataset")),
     )
 
 

@@ -1,4 +1,4 @@
-"""Cache keys (DESIGN §8): sha256 over the stage name, its code version, the resolved config subtree it
+"""Cache keys (docs/design.md §8): sha256 over the stage name, its code version, the resolved config subtree it
 declares, its inputs' keys and the fingerprint of its watched paths. Nothing else.
 """
 

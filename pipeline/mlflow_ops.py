@@ -16,6 +16,7 @@ MAX_PARAMS_PER_BATCH = 100
 MAX_METRICS_PER_BATCH = 1000
 EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
 EXPERIMENT_KIND = "custom_model_development"
+DATASET_DIGEST_CHARS = 36  # the length of MLflow's dataset digest column
 
 
 @contextlib.contextmanager
@@ -42,6 +43,8 @@ class MlflowOps:
     def _experiment_id(self, name: str) -> str:
         found = self.client.get_experiment_by_name(name)
         if found is not None:
+            if EXPERIMENT_KIND_TAG not in found.tags:  # created before the engine set it, or by another tool
+                self.client.set_experiment_tag(found.experiment_id, EXPERIMENT_KIND_TAG, EXPERIMENT_KIND)
             return found.experiment_id
         try:
             # The kind makes the MLflow 3 UI open the experiment on its training runs, not on GenAI traces.
@@ -82,6 +85,14 @@ class MlflowOps:
     def log_artifacts(self, run_id: str, directory: str) -> None:
         if Path(directory).is_dir() and any(Path(directory).iterdir()):
             self.client.log_artifacts(run_id, directory)
+
+    def log_dataset(self, run_id: str, name: str, digest: str, source: str) -> None:
+        """Record a dataset as an input of the run (the UI's Dataset column): its ``digest`` identifies the
+        content (MLflow keeps 36 characters of it), ``source`` says where it is."""
+        from mlflow.entities import Dataset, DatasetInput
+
+        dataset = Dataset(name=name, digest=digest[:DATASET_DIGEST_CHARS], source_type="local", source=source)
+        self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)

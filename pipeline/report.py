@@ -32,5 +32,18 @@ def summary_table(summary: dict) -> str:
             f"{_main_metrics(s['metrics'])}"
         )
     lines += [f"{name:<{width}}  {'-':<5}  {'':>8}  {'':<10}  not run: {why}" for name, why in not_run.items()]
+    lines += figure_lines(summary)
     lines.append(f"pipeline: {summary['pipeline_seconds']:.2f} s; MLflow run {summary['mlflow_run_id']}")
     return "\n".join(lines)
+
+
+def figure_lines(summary: dict, shown: int = 3) -> list[str]:
+    """Where each stage's figures are: the PNG files at the top of its ``artifacts`` folder."""
+    lines = []
+    for name, s in summary["stages"].items():
+        folder = Path(s.get("output_dir") or "") / "artifacts"
+        pngs = sorted(p.name for p in folder.glob("*.png")) if s.get("output_dir") and folder.is_dir() else []
+        if pngs:
+            more = f", ... ({len(pngs)} figures)" if len(pngs) > shown else ""
+            lines.append(f"  {name}: {folder}/{{{', '.join(pngs[:shown])}{more}}}")
+    return ["figures:", *lines] if lines else []

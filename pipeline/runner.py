@@ -185,6 +185,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
     tracker.log(run_id, metrics={**metrics, f"{name}.seconds": seconds},
                 tags={"computed_by_run": computed_by, "computed_seconds": f"{entry.manifest.get('seconds', 0):.3f}"})
     tracker.end(run_id, "FINISHED")
+    if spec.dataset is not None:  # the parent run's Dataset column: this output, identified by its cache key
+        tracker.log_dataset(parent_id, spec.dataset, key, str(entry.out_dir.resolve()))
     if cache.read_latest(name) != plan.parts.to_json():
         cache.write_latest(name, plan.parts.to_json())
     return {

@@ -78,8 +78,8 @@ class InProcessTracker:
 class WorkerTracker:
     """MLflow calls forwarded to ``python -m pipeline.mlflow_worker`` (see that module for why).
 
-    Only ``create_run`` waits for its answer (the engine needs the run id); ``init``, ``log``, ``end`` and
-    ``log_artifacts`` are posted without waiting, so the worker works through them while the engine goes
+    Only ``create_run`` waits for its answer (the engine needs the run id); ``init``, ``log``, ``end``,
+    ``log_dataset`` and ``log_artifacts`` are posted without waiting, so the worker works through them while the engine goes
     on. Their errors are raised by the next call that waits, or by ``flush``: a failed call is never
     silent, it is reported one step later.
     """
@@ -143,6 +143,9 @@ class WorkerTracker:
 
     def log_artifacts(self, run_id, directory):
         self._send("log_artifacts", {"run_id": run_id, "directory": directory})
+
+    def log_dataset(self, run_id, name, digest, source):
+        self._send("log_dataset", {"run_id": run_id, "name": name, "digest": digest, "source": source})
 
     def end(self, run_id, status="FINISHED"):
         self._send("end", {"run_id": run_id, "status": status})

@@ -48,17 +48,18 @@ def draw_relations(rgb: np.ndarray, record: Record) -> np.ndarray:
 
 
 def contact_sheet(images: list[np.ndarray], cols: int, pad: int = 4) -> np.ndarray:
-    """Tile images (resized to the first one's size) into a grid of ``cols`` columns on a dark background."""
+    """Tile images into a grid of ``cols`` columns on a dark background. Tiles are as large as the largest
+    image; images of other sizes (fisheye rigs differ) are centred in theirs, never stretched."""
     if not images:
         raise ValueError("contact_sheet needs at least one image")
     cols = max(1, min(cols, len(images)))
-    h, w = images[0].shape[:2]
+    h = max(img.shape[0] for img in images)
+    w = max(img.shape[1] for img in images)
     rows = (len(images) + cols - 1) // cols
     sheet = np.full((rows * (h + pad) + pad, cols * (w + pad) + pad, 3), 24, np.uint8)
     for i, img in enumerate(images):
-        if img.shape[:2] != (h, w):
-            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         r, c = divmod(i, cols)
-        y, x = pad + r * (h + pad), pad + c * (w + pad)
-        sheet[y:y + h, x:x + w] = img
+        ih, iw = img.shape[:2]
+        y, x = pad + r * (h + pad) + (h - ih) // 2, pad + c * (w + pad) + (w - iw) // 2
+        sheet[y:y + ih, x:x + iw] = img
     return sheet

@@ -1,12 +1,13 @@
-"""Fixtures for every test directory. Importing this file (pytest does, before the conftest files below
-it) also puts tests/ on sys.path, so that shared helper modules here (sqlite_store) import by name."""
+"""Fixtures for every test directory. Every test folder is a package (``tests.stages.export`` ...), so helper
+modules import by their full name and no folder's names shadow another's or the project's."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from sqlite_store import template
+
+from tests.sqlite_store import template
 
 
 @pytest.fixture(scope="session")

@@ -1,116 +1,124 @@
-"""Kannala-Brandt fisheye cameras (the parameterisation of OpenCV's ``cv2.fisheye``) mounted on the ego.
+"""The generator's camera rig: four fisheye cameras mounted on the ego, nominal or randomised.
 
-Projection uses theta = atan2(r, z), the angle off the optical axis, so points beyond 90 deg (a 190 deg
-lens sees them) land in the image and points behind the camera are not mirrored in front of it, as they
-are with ``cv2.fisheye.projectPoints`` (theta = atan(r / z)). The distortion is
-theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8), image radius = f theta_d.
+The camera models themselves live in ``stages.cameras``. Here the rig is built in the generator's ego
+frame (x forward, y left, z up, origin on the ground under the ego's centre; ``stages.data.synword``
+shifts it to the rear axle when it writes calibrations).
 
-Frames: the ego frame has x forward, y left, z up, origin on the ground under the ego's centre. The
-camera frame is OpenCV's: x right, y down, z along the optical axis.
+Randomised rigs (``data.lens``): per camera a lens family from ``lens.families`` (``kannala_brandt`` or
+``radial_poly``), a field of view, the radius its edge reaches as a share of the half image width, a
+principal-point offset, a pixel aspect ratio, an image size (width scale x aspect ratio) and a jittered
+mount (height, pitch, yaw, roll, position). A rig is drawn from (seed, rig index) alone, so generation
+is deterministic and independent of how frames are spread over processes.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
+from stages.cameras import Camera, kannala_brandt_lens, mount_rotation, radial_poly_lens
 
-@dataclass(frozen=True)
-class FisheyeCamera:
-    name: str
-    K: np.ndarray          # 3x3 intrinsics (fx, fy, cx, cy; no skew)
-    D: np.ndarray          # k1..k4
-    width: int
-    height: int
-    fov_deg: float
-    position: np.ndarray   # camera centre in the ego frame (m)
-    R: np.ndarray          # 3x3 rotation ego -> camera: p_cam = R @ (p_ego - position)
-
-    @property
-    def theta_max(self) -> float:
-        return math.radians(self.fov_deg) / 2
-
-    @property
-    def forward(self) -> np.ndarray:
-        """The optical axis in the ego frame."""
-        return self.R[2]
-
-    def distort(self, theta: np.ndarray) -> np.ndarray:
-        t2 = theta * theta
-        k1, k2, k3, k4 = self.D
-        return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
-
-    def undistort(self, theta_d: np.ndarray, iters: int = 12) -> np.ndarray:
-        """Invert ``distort`` by Newton's method (the polynomial is monotone on [0, pi] for our lenses)."""
-        theta = np.array(theta_d, dtype=np.float64, copy=True)
-        k1, k2, k3, k4 = self.D
-        for _ in range(iters):
-            t2 = theta * theta
-            f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
-            df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-            theta -= f / df
-        return theta
-
-    def project_cam(self, pts_cam: np.ndarray) -> np.ndarray:
-        """(N, 3) points in the camera frame -> (N, 2) pixels, defined for every direction but straight back."""
-        pts = np.asarray(pts_cam, dtype=np.float64).reshape(-1, 3)
-        r = np.hypot(pts[:, 0], pts[:, 1])
-        theta = np.arctan2(r, pts[:, 2])
-        scale = np.where(r > 1e-12, self.distort(theta) / np.maximum(r, 1e-12), 0.0)
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        return np.stack([fx * pts[:, 0] * scale + cx, fy * pts[:, 1] * scale + cy], axis=1)
-
-    def to_cam(self, pts_ego: np.ndarray) -> np.ndarray:
-        return (np.asarray(pts_ego, dtype=np.float64).reshape(-1, 3) - self.position) @ self.R.T
-
-    def project(self, pts_ego: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ego-frame points -> (pixels (N, 2), in_fov (N,)): in_fov is False beyond the lens' half field of view."""
-        cam = self.to_cam(pts_ego)
-        theta = np.arctan2(np.hypot(cam[:, 0], cam[:, 1]), cam[:, 2])
-        return self.project_cam(cam), theta <= self.theta_max
-
-    def unproject(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 2) pixels -> (unit ray directions in the camera frame (N, 3), theta (N,))."""
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        xd, yd = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
-        theta_d = np.hypot(xd, yd)
-        theta = self.undistort(theta_d)
-        s = np.where(theta_d > 1e-12, np.sin(theta) / np.maximum(theta_d, 1e-12), 0.0)
-        return np.stack([xd * s, yd * s, np.cos(theta)], axis=1), theta
-
-    def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-pixel unit ray directions in the EGO frame (H, W, 3) float32 and the in-FOV mask (H, W)."""
-        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
-        rays, theta = self.unproject(np.stack([u.ravel(), v.ravel()], axis=1))
-        ego = rays @ self.R  # camera -> ego: R^T applied to row vectors
-        valid = theta <= self.theta_max
-        return (ego.reshape(self.height, self.width, 3).astype(np.float32),
-                valid.reshape(self.height, self.width))
+# The shape of WoodScape's published radial polynomials relative to k1 (its front camera: k2/k1 = -0.094,
+# k3/k1 = 0.142, k4/k1 = -0.021), widened: the radial_poly family varies around real lenses.
+RADIAL_POLY_SHAPE = {"k2": (-0.15, -0.03), "k3": (0.07, 0.2), "k4": (-0.04, -0.008)}
+# Kannala-Brandt distortion coefficients of 170-200 deg lenses (cv2.fisheye calibrations are of this order).
+KANNALA_BRANDT_D = {"k1": (-0.02, 0.06), "k2": (-0.012, 0.004), "k3": (-0.001, 0.001), "k4": (-0.0002, 0.0002)}
+MONOTONE_MARGIN = math.radians(5)   # a drawn lens must stay one-to-one this far beyond its field of view
 
 
-def mount_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
-    """Rotation ego -> camera for a camera looking along heading ``yaw`` (0 forward, 90 left), pitched
-    ``pitch`` down, rolled ``roll`` about its optical axis."""
-    yaw, pitch, roll = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
-    f0 = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-    right = np.array([math.sin(yaw), -math.cos(yaw), 0.0])
-    down0 = np.array([0.0, 0.0, -1.0])
-    forward = math.cos(pitch) * f0 + math.sin(pitch) * down0
-    down = math.cos(pitch) * down0 - math.sin(pitch) * f0
-    cr, sr = math.cos(roll), math.sin(roll)
-    right, down = cr * right + sr * down, -sr * right + cr * down
-    return np.stack([right, down, forward])
-
-
-def camera_from_config(name: str, cam_cfg, width: int, height: int, reference_size) -> FisheyeCamera:
-    """Build a camera from its config entry; intrinsics are given at ``reference_size`` and scaled."""
+def nominal_camera(name: str, cam_cfg: dict, width: int, height: int, reference_size) -> Camera:
+    """The configured Kannala-Brandt camera (``data.cameras``), intrinsics scaled from ``reference_size``."""
     sx, sy = width / reference_size[0], height / reference_size[1]
-    k = cam_cfg["K"]
-    K = np.array([[k["fx"] * sx, 0, k["cx"] * sx], [0, k["fy"] * sy, k["cy"] * sy], [0, 0, 1]], dtype=np.float64)
-    return FisheyeCamera(
-        name=name, K=K, D=np.asarray(cam_cfg["D"], dtype=np.float64), width=width, height=height,
-        fov_deg=float(cam_cfg["fov_deg"]), position=np.asarray(cam_cfg["position"], dtype=np.float64),
-        R=mount_rotation(cam_cfg["yaw_deg"], cam_cfg["pitch_deg"], cam_cfg.get("roll_deg", 0.0)))
+    k, d = cam_cfg["K"], [float(v) for v in cam_cfg["D"]]
+    # the config's principal point is given in pixel-edge coordinates; the lens uses pixel centres
+    intrinsic = {"model": "kannala_brandt", "fx": k["fx"] * sx, "fy": k["fy"] * sy, "cx": k["cx"] * sx - 0.5,
+                 "cy": k["cy"] * sy - 0.5, "k1": d[0], "k2": d[1], "k3": d[2], "k4": d[3],
+                 "width": int(width), "height": int(height), "fov_deg": float(cam_cfg["fov_deg"])}
+    return _camera(name, intrinsic, cam_cfg["position"], cam_cfg["yaw_deg"], cam_cfg["pitch_deg"],
+                   cam_cfg.get("roll_deg", 0.0))
+
+
+def _camera(name, intrinsic: dict, position, yaw, pitch, roll) -> Camera:
+    w, h = int(intrinsic["width"]), int(intrinsic["height"])
+    if intrinsic["model"] == "kannala_brandt":
+        lens = kannala_brandt_lens(*(intrinsic[k] for k in ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")))
+    else:
+        lens = radial_poly_lens(*(intrinsic[k] for k in ("k1", "k2", "k3", "k4", "cx_offset", "cy_offset",
+                                                         "aspect_ratio")), w, h)
+    return Camera(name=name, lens=lens, width=w, height=h, rotation=mount_rotation(yaw, pitch, roll),
+                  translation=np.asarray(position, dtype=np.float64), fov_deg=float(intrinsic["fov_deg"]),
+                  intrinsic=intrinsic)
+
+
+def _radius_is_monotone(poly, theta_end: float) -> bool:
+    theta = np.linspace(0.0, theta_end, 256)
+    slope = np.polynomial.polynomial.polyval(theta, np.polynomial.polynomial.polyder(poly))
+    return bool((slope > 0).all())
+
+
+def sample_intrinsic(rng: np.random.Generator, family: str, width: int, height: int, lens_cfg: dict) -> dict:
+    """Draw one lens of ``family`` for a ``width`` x ``height`` image (a calibration ``intrinsic`` dict)."""
+    fov = float(rng.uniform(*lens_cfg["fov_deg"]))
+    theta_max = math.radians(fov) / 2
+    edge_radius = float(rng.uniform(*lens_cfg["edge_radius"])) * width / 2  # pixels where the FOV ends
+    off = float(lens_cfg["principal_offset"]) * width
+    cx_off, cy_off = (float(v) for v in rng.uniform(-off, off, 2))
+    aspect = float(rng.uniform(*lens_cfg["pixel_aspect"]))
+    for _ in range(100):
+        if family == "kannala_brandt":
+            d = [float(rng.uniform(*KANNALA_BRANDT_D[k])) for k in ("k1", "k2", "k3", "k4")]
+            poly = (0.0, 1.0, 0.0, d[0], 0.0, d[1], 0.0, d[2], 0.0, d[3])
+        elif family == "radial_poly":
+            shape = [1.0] + [float(rng.uniform(*RADIAL_POLY_SHAPE[k])) for k in ("k2", "k3", "k4")]
+            poly = (0.0, *shape)
+        else:
+            raise ValueError(f"data.lens.families: unknown lens family {family!r} (kannala_brandt, radial_poly)")
+        if _radius_is_monotone(poly, theta_max + MONOTONE_MARGIN):
+            break
+    else:  # pragma: no cover - the ranges above make a monotone draw all but certain
+        raise RuntimeError(f"no one-to-one {family} lens drawn for a {fov:.0f} deg field of view")
+    gain = edge_radius / float(np.polynomial.polynomial.polyval(theta_max, poly))
+    common = {"width": int(width), "height": int(height), "fov_deg": round(fov, 3)}
+    if family == "kannala_brandt":
+        return {"model": family, "fx": gain, "fy": gain * aspect, "cx": (width - 1) / 2 + cx_off,
+                "cy": (height - 1) / 2 + cy_off, "k1": d[0], "k2": d[1], "k3": d[2], "k4": d[3], **common}
+    return {"model": family, "k1": gain, "k2": gain * shape[1], "k3": gain * shape[2], "k4": gain * shape[3],
+            "cx_offset": cx_off, "cy_offset": cy_off, "aspect_ratio": aspect, **common}
+
+
+def sample_image_size(rng: np.random.Generator, base_width: int, lens_cfg: dict) -> tuple[int, int]:
+    """A width scale and an image aspect ratio from the configured lists; even sizes."""
+    scale = float(lens_cfg["width_scales"][rng.integers(len(lens_cfg["width_scales"]))])
+    aspect = float(lens_cfg["image_aspects"][rng.integers(len(lens_cfg["image_aspects"]))])
+    w = 2 * round(base_width * scale / 2)
+    return w, 2 * round(w / aspect / 2)
+
+
+def sample_camera(rng: np.random.Generator, name: str, mount: dict, lens_cfg: dict, base_width: int) -> Camera:
+    """One randomised camera around its configured mount."""
+    families = list(lens_cfg["families"])
+    family = families[rng.integers(len(families))]
+    w, h = sample_image_size(rng, base_width, lens_cfg)
+    intrinsic = sample_intrinsic(rng, family, w, h, lens_cfg)
+    jit = lens_cfg["mount_jitter"]
+    position = np.asarray(mount["position"], dtype=np.float64).copy()
+    position[:2] += rng.uniform(-jit["xy_m"], jit["xy_m"], 2)
+    position[2] += rng.uniform(-jit["height_m"], jit["height_m"])
+    yaw = mount["yaw_deg"] + rng.uniform(-jit["yaw_deg"], jit["yaw_deg"])
+    pitch = mount["pitch_deg"] + rng.uniform(-jit["pitch_deg"], jit["pitch_deg"])
+    roll = mount.get("roll_deg", 0.0) + rng.uniform(-jit["roll_deg"], jit["roll_deg"])
+    return _camera(name, intrinsic, position, yaw, pitch, roll)
+
+
+def rig_cameras(cfg: dict, seed: int, rig: int, names) -> list[Camera]:
+    """The four cameras of rig number ``rig``: randomised when ``cfg['lens']['randomise']``, else nominal."""
+    cams, lens_cfg = cfg["cameras"], cfg["lens"]
+    w, h = cfg["image_size"]
+    if not lens_cfg["randomise"]:
+        return [nominal_camera(n, cams[n], w, h, cams["reference_size"]) for n in names]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1E25, int(rig)]))
+    return [sample_camera(rng, n, cams[n], lens_cfg, w) for n in names]
+
+
+FisheyeCamera = Camera  # the renderer's name for a rig camera

@@ -1,5 +1,5 @@
 """The ``data`` stage: generate (``data=synword``) or validate (``data=word``) a WORD-style dataset, split it
-by frame into train/val/test with easy/hard/mixed test subsets, and report DESIGN §7's dataset metrics.
+by frame into train/val/test with easy/hard/mixed test subsets, and report docs/design.md §7's dataset metrics.
 
 Output directory: ``dataset.json`` (where the labels and images are), ``splits.json``, and for synthetic
 data ``labels.jsonl`` + ``images/``; ``artifacts/contact_sheet.png`` shows a few frames with their labels.

@@ -1,4 +1,4 @@
-"""Dataset statistics of DESIGN §7 (``data.<split>.*`` metrics) and the splits both data sources share."""
+"""Dataset statistics of docs/design.md §7 (``data.<split>.*`` metrics) and the splits both data sources share."""
 
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.data.camera import camera_from_config
+from stages.data.camera import rig_cameras
 from stages.data.render import (
     TEX_HALF,
     TEX_RES,
@@ -33,23 +33,32 @@ from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
 
 
 class FrameGenerator:
-    """Everything a process needs to render frames; per-camera tables are built once."""
+    """Everything a process needs to render frames; a rig's per-camera tables are built once per process."""
 
     def __init__(self, cfg: dict, seed: int):
         self.cfg = cfg
         self.seed = int(seed)
-        w, h = cfg["image_size"]
-        cams = cfg["cameras"]
-        self.cameras = [camera_from_config(name, cams[name], w, h, cams["reference_size"]) for name in CAMERAS]
         self.ego = ego_vehicle(cfg["ego"])
-        self.tables = [build_tables(cam, self.ego) for cam in self.cameras]
+        # calibrations and 3D truth are written in ISO 8855's vehicle frame: origin under the rear axle
+        self.rear_axle = np.array([self.ego.wheels[0][2][0], 0.0, 0.0])
+        self._rig: tuple[int, list] | None = None  # (rig index, its cameras' tables): rigs change rarely
         self.sampler = SceneSampler(cfg["scenes"], self.ego.length, self.ego.width)
         n = int(round(2 * TEX_HALF / TEX_RES))
         blotches = np.random.default_rng(12345).normal(0, 1, (n // 16, n // 16)).astype(np.float32)
         fine = np.random.default_rng(54321).normal(0, 1, (n, n)).astype(np.float32)
+        w, h = max_image_size(cfg)
         self.sensor_noise = noise_bank(w, h, cfg["render"]["noise_sigma"])
         self.noise = np.clip(128 + 9 * cv2.resize(blotches, (n, n), interpolation=cv2.INTER_CUBIC) + 5 * fine,
                              0, 255).astype(np.uint8)
+
+    def tables(self, frame_id: int) -> list:
+        """The per-pixel tables of the frame's rig (``data.lens.frames_per_rig`` consecutive frames share
+        one rig: building a rig's tables costs about as much as rendering a frame)."""
+        rig = int(frame_id) // int(self.cfg["lens"]["frames_per_rig"])
+        if self._rig is None or self._rig[0] != rig:
+            cams = rig_cameras(self.cfg, self.seed, rig, CAMERAS)
+            self._rig = (rig, [build_tables(cam, self.ego) for cam in cams])
+        return self._rig[1]
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:
         return np.random.default_rng(np.random.SeedSequence([self.seed, int(frame_id)]))
@@ -65,14 +74,14 @@ class FrameGenerator:
         skyline = rng.uniform(3, 25, 72).astype(np.float32) * (rng.random(72) < 0.8)
         skyline_rgb = (rng.uniform(0.3, 0.65, (72, 1)) * rng.uniform(0.9, 1.1, (72, 3))).astype(np.float32)
         out = []
-        for tables in self.tables:
+        for tables in self.tables(frame_id):
             rgb, _, vstats, wstats = render_camera(tables, scene, tex, skyline, skyline_rgb, sun)
             img = finish(rgb, rng, self.sensor_noise, rcfg["blur_sigma"], rng.uniform(0.88, 1.12))
-            rec = self.labels(frame_id, tables.cam.name, scene, vstats, wstats, rng)
+            rec = self.labels(frame_id, tables.cam, scene, vstats, wstats, rng)
             out.append((tables.cam.name, img, rec))
         return out
 
-    def labels(self, frame_id, camera, scene, vstats, wstats, rng) -> Record:
+    def labels(self, frame_id, cam, scene, vstats, wstats, rng) -> Record:
         min_vis, min_px = self.cfg["min_visible_fraction"], self.cfg["min_box_px"]
 
         def annotated(st) -> bool:
@@ -100,11 +109,40 @@ class FrameGenerator:
                 a, b = (WHEEL, 4 * i + rear), (WHEEL, 4 * i + front)
                 if a in box_id and b in box_id:
                     pairs.append((box_id[a], box_id[b]))
-        w, h = self.cfg["image_size"]
         arr = np.array(sorted(boxes, key=lambda r: r[6]), dtype=np.float64).reshape(-1, 7)
-        return Record(image=image_path(camera, frame_id), frame_id=int(frame_id), camera=camera, width=int(w),
-                      height=int(h), boxes=arr, relations=relations, wheel_pairs=pairs, scene=scene.kind,
-                      extra={"layout": scene.layout})
+        extra = {"layout": scene.layout, "calibration": cam.shifted(self.rear_axle).calibration(),
+                 "objects_3d": self.objects_3d(scene, box_id)}
+        return Record(image=image_path(cam.name, frame_id), frame_id=int(frame_id), camera=cam.name,
+                      width=int(cam.width), height=int(cam.height), boxes=arr, relations=relations,
+                      wheel_pairs=pairs, scene=scene.kind, extra=extra)
+
+    def objects_3d(self, scene, box_id: dict) -> dict:
+        """3D truth of the annotated objects in the ISO 8855 vehicle frame (docs/design.md §4): vehicles as boxes,
+        wheels by their ground contact point (the middle of the tyre's footprint)."""
+        out = {}
+        for (cls, idx), bid in sorted(box_id.items(), key=lambda kv: kv[1]):
+            if cls == VEHICLE:
+                v = scene.vehicles[idx]
+                centre = v.to_ego(np.array([0.0, 0.0, v.height / 2])) - self.rear_axle
+                out[str(bid)] = {"center": [round(float(c), 4) for c in centre],
+                                 "size": [round(float(v.length), 4), round(float(v.width), 4), round(float(v.height), 4)],
+                                 "yaw": round(float(math.remainder(v.yaw, 2 * math.pi)), 5)}
+            else:
+                v = scene.vehicles[idx // 4]
+                _, _, (x, y) = v.wheels[idx % 4]
+                contact = v.to_ego(np.array([x, y, 0.0])) - self.rear_axle
+                out[str(bid)] = {"contact": [round(float(contact[0]), 4), round(float(contact[1]), 4)]}
+        return out
+
+
+def max_image_size(cfg: dict) -> tuple[int, int]:
+    """The largest image a rig of this config can have (the sensor-noise bank covers every size)."""
+    w, h = cfg["image_size"]
+    lens = cfg["lens"]
+    if not lens["randomise"]:
+        return int(w), int(h)
+    widest = 2 * round(w * max(lens["width_scales"]) / 2)
+    return widest, 2 * round(widest / min(lens["image_aspects"]) / 2)
 
 
 def image_path(camera: str, frame_id: int) -> str:
@@ -154,6 +192,8 @@ def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, pr
     else:
         ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
         with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg, seed, str(out_dir))) as pool:
-            results = list(tqdm(pool.imap(_work, frames, chunksize=2), **bar))
+            # a chunk of one rig's frames: each process builds a rig's tables once
+            chunk = max(1, int(cfg["lens"]["frames_per_rig"]))
+            results = list(tqdm(pool.imap(_work, frames, chunksize=chunk), **bar))
     order = {c: i for i, c in enumerate(CAMERAS)}
     return sorted((r for recs in results for r in recs), key=lambda r: (r.frame_id, order[r.camera]))

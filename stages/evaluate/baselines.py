@@ -1,4 +1,4 @@
-"""The logic-model baselines of DESIGN §7, each with parameters fitted on the train split only.
+"""The logic-model baselines of docs/design.md §7, each with parameters fitted on the train split only.
 
 - ``logic``: the paper's IoU rule. Each wheel goes to the vehicle whose box has the highest IoU with the
   wheel's box, if that IoU exceeds a threshold.
@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import itertools
 import random
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stages.geometry import box_centres, containment, pairwise_distance_ratio, pairwise_iou
+from stages.metrics import Counts, count_relations
 from stages.word_format import VEHICLE, WHEEL, Record
 
 MAX_WHEELS_PER_VEHICLE = 4
@@ -144,16 +146,27 @@ class LogicPlusParams:
     none_cost: float = 4.0    # cost of leaving a wheel without owner
 
 
-GRID = {
-    "min_containment": [0.3, 0.5, 0.7, 0.85, 0.95],
-    "min_height": [0.0, 0.2, 0.35, 0.5, 0.6],
-    "w_bottom": [0.0, 0.25, 0.5, 1.0, 2.0, 4.0],
-    "w_ratio": [0.0, 0.25, 0.5, 1.0, 2.0],
-    "w_size": [0.0, 0.25, 0.5, 1.0, 2.0],
-    "w_end": [0.0, 0.5, 1.0, 2.0, 4.0],
-    "w_contain": [0.0, 0.5, 1.0, 2.0, 4.0],
-    "none_cost": [0.5, 1.0, 2.0, 4.0, 8.0, 16.0],
-}
+@dataclass(frozen=True)
+class SearchGrids:
+    """The values each baseline parameter is searched over on train (``eval.baseline_grids``)."""
+
+    couple_tolerance: tuple[float, ...]    # CoupleRule tolerance (logic, logic_plus)
+    logic_iou: tuple[float, ...]           # logic's IoU threshold
+    prior_owner: tuple[float, ...]         # prior's owner threshold
+    prior_couple: tuple[float, ...]        # prior's couple threshold
+    logic_plus: dict[str, tuple[float, ...]]  # LogicPlusParams field -> values, searched coordinate-wise
+    logic_plus_rounds: int                 # passes of the coordinate-wise search
+
+    @classmethod
+    def from_cfg(cls, grids) -> SearchGrids:
+        unknown = set(grids.logic_plus) - set(LogicPlusParams.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"eval.baseline_grids.logic_plus: unknown parameters {sorted(unknown)}; have "
+                             f"{sorted(LogicPlusParams.__dataclass_fields__)}")
+        values = lambda xs: tuple(float(x) for x in xs)  # noqa: E731
+        return cls(values(grids.couple_tolerance), values(grids.logic_iou), values(grids.prior_owner),
+                   values(grids.prior_couple), {k: values(v) for k, v in grids.logic_plus.items()},
+                   int(grids.logic_plus_rounds))
 
 
 @dataclass
@@ -296,31 +309,34 @@ def prepare_train(records: list[Record], min_box_px: float, max_images: int, see
     return out
 
 
+def train_counts(im: TrainImage, owners: np.ndarray | None = None,
+                 couples: list[tuple[int, int]] | None = None) -> Counts:
+    """§7 counts (``stages.metrics``) of one train image's predicted owner indices and couples (wheel index
+    pairs), on its ground-truth boxes and its evaluated wheels."""
+    rec = im.obj.rec
+    wheel_ids, vehicle_ids = rec.box_ids[im.obj.wheels], rec.box_ids[im.obj.vehicles]
+    evaluated = {int(b) for b in wheel_ids[im.evaluated]}
+    claimed = [] if owners is None else [(int(vehicle_ids[o]), int(w)) for w, o in zip(wheel_ids, owners, strict=True)
+                                         if o >= 0]
+    claimed_c = [(int(wheel_ids[a]), int(wheel_ids[b])) for a, b in couples or []]
+    return count_relations(evaluated, {int(b) for b in wheel_ids} - evaluated, [(v, w) for v, w, _ in rec.relations],
+                           rec.wheel_pairs, claimed, claimed_c)
+
+
 def owner_objective(images: list[TrainImage], owners: list[np.ndarray]) -> float:
     """wheel_acc + image_acc (percent) of predicted owner indices: the fitting objective."""
-    wheels = correct = good_images = 0
-    for im, own in zip(images, owners, strict=True):
-        ok = (own == im.true_owner)[im.evaluated]
-        wheels += len(ok)
-        correct += int(ok.sum())
-        good_images += bool(ok.all())
-    return 100.0 * correct / max(wheels, 1) + 100.0 * good_images / max(len(images), 1)
+    total = sum((train_counts(im, own) for im, own in zip(images, owners, strict=True)), Counts())
+    metrics = total.percentages()
+    return metrics["wheel_acc"] + metrics["image_acc"]
 
 
 def couple_f1(images: list[TrainImage], couples: list[list[tuple[int, int]]]) -> float:
     """Couple F1 (percent) of couples given as wheel index pairs, against the train truth."""
-    tp = fp = fn = 0
-    for im, pred in zip(images, couples, strict=True):
-        ids = im.obj.rec.box_ids[im.obj.wheels]
-        truth = {frozenset(p) for p in im.obj.rec.wheel_pairs}
-        got = {frozenset((int(ids[i]), int(ids[j]))) for i, j in pred}
-        tp += len(truth & got)
-        fp += len(got - truth)
-        fn += len(truth - got)
-    return 200.0 * tp / max(2 * tp + fp + fn, 1)
+    total = sum((train_counts(im, couples=c) for im, c in zip(images, couples, strict=True)), Counts())
+    return total.percentages()["couple_f1"]
 
 
-def fit_couple_rule(images: list[TrainImage]) -> CoupleRule:
+def fit_couple_rule(images: list[TrainImage], tolerances: Sequence[float]) -> CoupleRule:
     """Centre on the true couples' median log ratio; tolerance maximising couple F1 given true owners."""
     logs = []
     for im in images:
@@ -331,7 +347,7 @@ def fit_couple_rule(images: list[TrainImage]) -> CoupleRule:
         logs += [np.log(max(r[index[a], index[b]], 1e-9)) for a, b in im.obj.rec.wheel_pairs]
     centre = float(np.median(logs)) if logs else 0.0
     best = None
-    for tol in [0.1, 0.2, 0.3, 0.4, 0.5, 0.7, 1.0, 1.5, 2.5]:
+    for tol in tolerances:
         rule = CoupleRule(centre, tol)
         f1 = couple_f1(images, [rule.couples(im.obj, im.true_owner) for im in images])
         if best is None or f1 > best[0]:
@@ -339,18 +355,19 @@ def fit_couple_rule(images: list[TrainImage]) -> CoupleRule:
     return best[1]
 
 
-def fit_logic(images: list[TrainImage], couple_rule: CoupleRule) -> Logic:
+def fit_logic(images: list[TrainImage], couple_rule: CoupleRule, thresholds: Sequence[float]) -> Logic:
     """The IoU threshold maximising the train objective."""
     ious = [pairwise_iou(im.obj.w_xyxy, im.obj.v_xyxy) for im in images]
     best = None
-    for thr in [0.0, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3]:
+    for thr in thresholds:
         score = owner_objective(images, [argmax_owner(s, thr, strict=True) for s in ious])
         if best is None or score > best[0]:
             best = (score, thr)
     return Logic(best[1], couple_rule)
 
 
-def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, rounds: int = 2) -> LogicPlus:
+def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, grid: dict[str, Sequence[float]],
+                   rounds: int) -> LogicPlus:
     """Robust statistics of the true pairs, then coordinate-wise grid search of the gates and weights."""
     feats = [PairFeatures.of(im.obj) for im in images]
     ratio_logs, size_logs = [], []
@@ -367,7 +384,7 @@ def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, rounds: in
 
     best_params, best_score = model.params, objective(model.params)
     for _ in range(rounds):
-        for name, values in GRID.items():
+        for name, values in grid.items():
             for value in values:
                 params = replace(best_params, **{name: value})
                 score = objective(params)
@@ -376,18 +393,19 @@ def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, rounds: in
     return replace(model, params=best_params)
 
 
-def fit_prior(images: list[TrainImage], priors) -> PriorMethod:
+def fit_prior(images: list[TrainImage], priors, thresholds: Sequence[float],
+              couple_thresholds: Sequence[float]) -> PriorMethod:
     """Owner and couple thresholds on the priors maximising the train objective and couple F1."""
     method = PriorMethod(priors, 0.0, 0.0)
     scores = [method.scores(im.obj) for im in images]
     best = None
-    for thr in [0.0, 0.001, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5]:
+    for thr in thresholds:
         score = owner_objective(images, [argmax_owner(s, thr, strict=False) for s in scores])
         if best is None or score > best[0]:
             best = (score, thr)
     couple_scores = [method.couple_scores(im.obj) for im in images]
     best_c = None
-    for thr in [0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9]:
+    for thr in couple_thresholds:
         f1 = couple_f1(images, [pick_couples(im.true_owner, s, thr) for im, s in zip(images, couple_scores, strict=True)])
         if best_c is None or f1 > best_c[0]:
             best_c = (f1, thr)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.evaluate.metrics import score_image
+from stages.metrics import score_image
 from stages.word_format import Record, load_image
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from stages.evaluate.baselines import (
     CoupleRule,
+    SearchGrids,
     TrainImage,
     fit_couple_rule,
     fit_logic,
@@ -47,18 +48,22 @@ class EvalContext:
                              self.seed)
 
     @cached_property
+    def grids(self) -> SearchGrids:
+        return SearchGrids.from_cfg(self.cfg.baseline_grids)
+
+    @cached_property
     def couple_rule(self) -> CoupleRule:
-        return fit_couple_rule(self.train)
+        return fit_couple_rule(self.train, self.grids.couple_tolerance)
 
 
 def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
-    model that ships (``stages.export.runtime``); needs the export stage's output."""
+    model that ships (``stages.inference.runtime``); needs the export stage's output."""
 
     def factory(ctx: EvalContext):
         if "export" not in ctx.inputs:
             return None
-        from stages.export.runtime import deepword_method
+        from stages.inference.runtime import deepword_method
 
         return deepword_method(name, ctx.inputs["export"], ctx.dataset.root)
 
@@ -66,9 +71,10 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
 
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
-    "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule),
-    "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule),
-    "prior": lambda ctx: fit_prior(ctx.train, ctx.priors),
+    "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule, ctx.grids.logic_iou),
+    "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule, ctx.grids.logic_plus,
+                                             ctx.grids.logic_plus_rounds),
+    "prior": lambda ctx: fit_prior(ctx.train, ctx.priors, ctx.grids.prior_owner, ctx.grids.prior_couple),
     "deepword": deepword_onnx("deepword"),
     "deepword_int8": deepword_onnx("deepword_int8"),
 }
@@ -88,7 +94,7 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl``; None
     when the run has no detector."""
     if "export" in ctx.inputs:
-        from stages.export.runtime import NoDetectorError, OnnxDetector
+        from stages.inference.runtime import NoDetectorError, OnnxDetector
         from stages.word_format import load_image
 
         try:

@@ -2,18 +2,18 @@
 
 from __future__ import annotations
 
-from stages.evaluate.metrics import METRICS
+from stages import paper
+from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
-# The paper's Table 3 (Wu et al.): it does not say whether per wheel or per image, so it is printed
-# beside both wheel_acc and image_acc.
-PAPER_TABLE3 = {"logic model (paper)": (92.91, 71.83, 79.90), "DeepWORD (paper)": (99.17, 94.35, 95.14)}
+# The paper's Table 3 does not say whether per wheel or per image, so it is printed beside both.
+PAPER_TABLE3 = {paper.TABLE3_LABELS[m]: tuple(acc[s] for s in SUBSETS) for m, acc in paper.TABLE3_ACCURACY.items()}
 PAPER_METRICS = ("wheel_acc", "image_acc")
 BOX_TITLES = {"gt": "ground-truth boxes", "detected": "detected boxes (end-to-end)"}
 
 
 def metric_name(boxes: str, method: str, subset: str, metric: str) -> str:
-    """The MLflow key of DESIGN §7."""
+    """The MLflow key of docs/design.md §7."""
     return f"eval.{boxes}.{method}.{subset}.{metric}"
 
 
@@ -84,7 +84,7 @@ def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list
     out = [f"# {title}", ""]
     out.append("Subsets: " + ", ".join(f"{s} = {sizes[s]['images']} images / {sizes[s]['wheels']} evaluated wheels"
                                        for s in SUBSETS if s in sizes) + ".")
-    out.append("Metrics in percent (DESIGN §7). The paper's Table 3 rows (italic) are printed beside "
+    out.append("Metrics in percent (docs/design.md §7). The paper's Table 3 rows (italic) are printed beside "
                "wheel_acc and image_acc because the paper does not say which one it reports.")
     out.append("")
     out += lead or []

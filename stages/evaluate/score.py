@@ -1,4 +1,4 @@
-"""Score a WORD-format predictions file against a whole WORD-format dataset (DESIGN §7 definitions).
+"""Score a WORD-format predictions file against a whole WORD-format dataset (docs/design.md §7 definitions).
 
     python -m stages.evaluate.score --gt ROOT --pred FILE [--json OUT] [--min-box-px 8] [--seed 42]
 
@@ -16,8 +16,8 @@ import json
 import sys
 from pathlib import Path
 
-from stages.evaluate.metrics import evaluated_wheel_ids, score_records
 from stages.evaluate.report import render_markdown
+from stages.metrics import evaluated_wheel_ids, score_records
 from stages.word_format import LABELS_FILE, DatasetError, Record, difficulty_subsets, read_records
 
 

@@ -12,8 +12,8 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
-from stages.evaluate.metrics import evaluated_wheel_ids, score_records
 from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
+from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 
@@ -24,9 +24,14 @@ def detector_entry(inputs: dict[str, Path]) -> dict | None:
     """The export bundle's detector entry (AP, operating point), or None without an export or a detector."""
     if "export" not in inputs:
         return None
-    from stages.export.runtime import read_bundle
+    from stages.inference.runtime import read_bundle
 
     return read_bundle(inputs["export"]).get("detector")
+
+
+def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
+    """Where a method's predictions on a box source are written (the bev stage reads them back)."""
+    return Path(pred_dir) / f"{boxes}_{method}.jsonl"
 
 
 def build_methods(ctx: EvalContext) -> dict[str, object]:
@@ -69,7 +74,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         results[boxes] = {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}
-            write_records(pred_dir / f"{boxes}_{name}.jsonl", list(preds.values()))
+            write_records(predictions_file(pred_dir, boxes, name), list(preds.values()))
             results[boxes][name] = {s: score_records(recs, preds, min_px, iou).percentages()
                                     for s, recs in subsets.items()}
             if boxes == "gt":

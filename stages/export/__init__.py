@@ -1,1 +1,1 @@
-"""ONNX export of the relation network and the detector, parity, INT8, latency, and `deepword infer`."""
+"""ONNX export of the relation network and the detector, parity, INT8 and latency: the bundle `stages.inference` runs."""

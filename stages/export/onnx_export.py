@@ -6,7 +6,7 @@ tracing captures them exactly; it needs no ``onnxscript`` dependency and writes 
 that older embedded runtimes read (opset 17). The exported graphs are checked by the parity tests.
 
 What is exported:
-- relation: ``RelationGraph`` = the node tensor of DESIGN §6 (uint8 crops -> [0, 1] RGB + four coordinate
+- relation: ``RelationGraph`` = the node tensor of docs/design.md §6 (uint8 crops -> [0, 1] RGB + four coordinate
   planes, ``stages.relation.inputs.node_tensor``) + ``RelationNet``: the trained module, the PyTorch
   reference of parity and latency. What is exported is ``ShippedRelation``, the same function rewritten
   for inference speed (``FoldedBackbone``: the /255 and the first BatchNorm folded into the first
@@ -14,7 +14,7 @@ What is exported:
   backbone runs on real objects only), with its tensors' shapes named (``name_object_dims``).
   Inputs crops (B, N, 3, S, S) uint8, coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs
   owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
-  (``stages.export.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
+  (``stages.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
   throughout; ``dynamic``: batch and N dynamic.
 - detector: ``DetectorGraph`` = CenterNet + ``ctdet_decode`` (peak extraction and top-K), dynamic batch;
@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stages.export.channels_first import ChannelsFirstGraph
-from stages.export.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
+from stages.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
 from stages.relation.inputs import node_tensor
 
 OPSET = 17

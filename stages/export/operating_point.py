@@ -9,7 +9,7 @@ vehicle steals wheels, a false wheel only adds one claim), hence one threshold p
 
 The search is exhaustive over a grid of threshold pairs (coordinate ascent is not enough: keeping a weak
 false vehicle can be harmless while weak wheels are dropped and harmful once they are kept, so each class's
-best threshold depends on the other's), on pair_f1 as ``stages.evaluate.metrics`` scores it: the evaluate
+best threshold depends on the other's), on pair_f1 as ``stages.metrics`` scores it: the evaluate
 stage's own definition, on the val split, never the test split. Among equally good pairs the one with the
 lowest thresholds wins (more recall for the same F1).
 """
@@ -18,27 +18,22 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 
 import numpy as np
 
+from stages.inference.runtime import keep_at
 from stages.word_format import Record
 
+__all__ = ["DEFAULT_GRID", "SubsetRelation", "choose_thresholds", "end_to_end_pair_f1", "keep_at"]
+
 DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
-
-
-def keep_at(record: Record, thresholds: Sequence[float]) -> Record:
-    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``);
-    box ids are kept, so kept boxes still name the detections they came from."""
-    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[record.class_ids.astype(int)]
-    return replace(record, boxes=record.boxes[keep].copy(), relations=[], wheel_pairs=[])
 
 
 def end_to_end_pair_f1(truths: Sequence[Record], detections: Sequence[Record], thresholds: Sequence[float],
                        predict: Callable[[list[Record]], list[Record]], min_box_px: float,
                        match_iou: float) -> float:
     """pair_f1 (percent) of ``predict`` on the detections kept at ``thresholds``, against ``truths``."""
-    from stages.evaluate.metrics import score_records
+    from stages.metrics import score_records
 
     preds = predict([keep_at(d, thresholds) for d in detections])
     return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()["pair_f1"]

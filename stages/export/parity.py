@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.export.runtime import DETECTOR_INPUT, RELATION_OUTPUTS, pad_graphs
+from stages.inference.runtime import DETECTOR_INPUT, RELATION_OUTPUTS, pad_graphs
 
 
 class ParityError(RuntimeError):

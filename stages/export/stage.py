@@ -12,7 +12,7 @@
    the same inputs in the same process, the static model padded to max_objects, INT8, detector;
 5. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
 
-The output directory is the self-contained bundle ``stages.export.runtime`` documents; reports go to
+The output directory is the self-contained bundle ``stages.inference.runtime`` documents; reports go to
 ``artifacts/`` (``latency.md``, ``parity.json``).
 """
 
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.export.runtime import (
+from stages.inference.runtime import (
     BUNDLE_FILE,
     DETECTOR_FILE,
     DETECTOR_INPUT,
@@ -34,13 +34,12 @@ from stages.export.runtime import (
     OnnxRelation,
     ort_session,
 )
+from stages.paper import DSP_LATENCY
 from stages.word_format import SUBSETS, load_image, open_dataset
 
 if TYPE_CHECKING:
     from stages.export.parity import ParityReport
 
-PAPER_MS_PER_IMG_B1 = 3.2     # DeepWORD on an embedded DSP (paper, Tables 1-2)
-PAPER_MS_PER_10IMG_B10 = 13.1
 
 
 def _limit(records: list, limit) -> list:
@@ -88,7 +87,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
 
 
 def wheel_acc_by_subset(ds, preds: dict, min_box_px: float) -> dict[str, float]:
-    from stages.evaluate.metrics import score_records
+    from stages.metrics import score_records
 
     return {s: score_records(ds.subset(s), preds, min_box_px).percentages()["wheel_acc"] for s in SUBSETS}
 
@@ -176,7 +175,7 @@ def latency_table(m: dict[str, float]) -> str:
         row("relation, onnxruntime, 1 thread, CPU time, static model padded", "static_cpu_"),
         f"| relation INT8, onnxruntime, real object counts | {r['int8_ms_per_img_b1']:.2f} | | "
         f"| {r['int8.size_mb']:.2f} |",
-        f"| paper (embedded DSP) | {PAPER_MS_PER_IMG_B1} | {PAPER_MS_PER_10IMG_B10} | | |",
+        f"| paper (embedded DSP) | {DSP_LATENCY['ms_per_img_b1']} | {DSP_LATENCY['ms_per_10img_b10']} | | |",
     ]
     if "export.detector.ms_per_img_b1" in m:
         rows += [
@@ -222,7 +221,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     """Per-class score thresholds of the exported detector, chosen on the val split by the end-to-end pair_f1
     of the exported DeepWORD model (``stages.export.operating_point``); returns ({class: threshold}, metrics)."""
     from stages.export.operating_point import SubsetRelation, choose_thresholds, end_to_end_pair_f1
-    from stages.export.runtime import OnnxDetector
+    from stages.inference.runtime import OnnxDetector
 
     val = _limit(ds.subset("val"), op_cfg.images)
     if not val:

@@ -1,4 +1,4 @@
-"""From relation scores to decisions, and the counts behind the relation metrics (DESIGN §7), in torch.
+"""From relation scores to decisions in torch, and their docs/design.md §7 counts (``stages.metrics``).
 
 Batched and vectorised so the Lightning module can score whole validation batches; the predictor uses
 the same functions on one image. Conventions: a decided ownership matrix is (B, N, N) bool with wheels
@@ -7,8 +7,12 @@ as rows and vehicles as columns; a decided couple matrix is symmetric.
 
 from __future__ import annotations
 
+from dataclasses import fields
+
+import numpy as np
 import torch
 
+from stages.metrics import Counts, count_relations
 from stages.word_format import VEHICLE, WHEEL
 
 
@@ -70,44 +74,36 @@ def decode_couples(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tens
 
 
 def relation_counts(pred_owner: torch.Tensor, owner: torch.Tensor, pred_couple: torch.Tensor,
-                    couple: torch.Tensor, classes: torch.Tensor,
-                    valid: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-    """Counts for wheel_acc, image_acc, pair precision/recall and couple F1 over every annotated wheel in the
-    graph: with ``valid`` (B, N), objects masked out of it (``small_mask_px``) are not counted, since the
-    network never sees them (counted, each owned one would be a fixed error in every epoch's metric).
-    ``owner``/``couple`` are the symmetric 0/1 target matrices of ``inputs.relation_targets``."""
-    if valid is not None:
-        classes = torch.where(valid.bool(), classes, torch.full_like(classes, -1))
+                    couple: torch.Tensor, classes: torch.Tensor, evaluated: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The §7 counts of a batch's decisions (``stages.metrics.count_relations``, node indices standing for box
+    ids) over its evaluated wheels, ``evaluated`` (B, N): the wheels the evaluation scores, so validation
+    selects the model on the metric the report gives. ``owner``/``couple`` are the symmetric 0/1 target
+    matrices of ``inputs.relation_targets``."""
     wv, ww = type_masks(classes)
-    true_owner = owner.bool() & wv
-    pred_owner = pred_owner & wv
-    is_wheel = classes == WHEEL
-    wheel_ok = (pred_owner == true_owner).all(dim=-1) & is_wheel
-    wheel_wrong = is_wheel & ~wheel_ok
-    upper = torch.triu(torch.ones_like(ww), diagonal=1) & ww
-    true_couple, pred_couple = couple.bool() & upper, pred_couple & upper
-    return {
-        "wheels": is_wheel.sum(), "wheels_correct": wheel_ok.sum(),
-        "images": torch.tensor(classes.shape[0], device=classes.device),
-        "images_correct": (~wheel_wrong.any(dim=-1)).sum(),
-        "pair_tp": (pred_owner & true_owner).sum(), "pair_fp": (pred_owner & ~true_owner).sum(),
-        "pair_fn": (~pred_owner & true_owner).sum(),
-        "couple_tp": (pred_couple & true_couple).sum(), "couple_fp": (pred_couple & ~true_couple).sum(),
-        "couple_fn": (~pred_couple & true_couple).sum(),
-    }
+    batch = [t.detach().cpu().numpy() for t in (pred_owner & wv, owner.bool() & wv, pred_couple & ww,
+                                                  couple.bool() & ww, classes == WHEEL, evaluated.bool())]
+    total = Counts()
+    for pred_o, true_o, pred_c, true_c, is_wheel, is_evaluated in zip(*batch, strict=True):
+        scored = set(np.flatnonzero(is_evaluated & is_wheel).tolist())
+        total = total + count_relations(
+            scored, set(np.flatnonzero(is_wheel).tolist()) - scored,
+            true_relations=_vehicle_wheel_pairs(true_o), true_couples=_upper_pairs(true_c),
+            claimed_relations=_vehicle_wheel_pairs(pred_o), claimed_couples=_upper_pairs(pred_c))
+    return {f.name: torch.tensor(getattr(total, f.name), device=classes.device) for f in fields(Counts)}
 
 
-def _ratio(num: float, den: float, empty: float) -> float:
-    return 100.0 * num / den if den > 0 else empty
+def _vehicle_wheel_pairs(wheel_rows: np.ndarray) -> list[tuple[int, int]]:
+    """(vehicle, wheel) node pairs of a wheel-row/vehicle-column matrix."""
+    wheels, vehicles = np.nonzero(wheel_rows)
+    return list(zip(vehicles.tolist(), wheels.tolist(), strict=True))
+
+
+def _upper_pairs(symmetric: np.ndarray) -> list[tuple[int, int]]:
+    """Each pair of a symmetric matrix once."""
+    a, b = np.nonzero(np.triu(symmetric, 1))
+    return list(zip(a.tolist(), b.tolist(), strict=True))
 
 
 def metrics_from_counts(c: dict[str, float]) -> dict[str, float]:
-    """Percentages (DESIGN §7). With nothing to find and nothing found, precision/recall/F1 are 100."""
-    precision = _ratio(c["pair_tp"], c["pair_tp"] + c["pair_fp"], 100.0)
-    recall = _ratio(c["pair_tp"], c["pair_tp"] + c["pair_fn"], 100.0)
-    f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
-    c_den = 2 * c["couple_tp"] + c["couple_fp"] + c["couple_fn"]
-    return {"wheel_acc": _ratio(c["wheels_correct"], c["wheels"], 100.0),
-            "image_acc": _ratio(c["images_correct"], c["images"], 100.0),
-            "pair_precision": precision, "pair_recall": recall, "pair_f1": f1,
-            "couple_f1": _ratio(2 * c["couple_tp"], c_den, 100.0)}
+    """Percentages of summed ``relation_counts`` (``stages.metrics.Counts.percentages``)."""
+    return Counts(**{k: int(v) for k, v in c.items()}).percentages()

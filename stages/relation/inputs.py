@@ -1,4 +1,4 @@
-"""Graph inputs of the DeepWORD relation network (DESIGN §6), built once per image and cached per split.
+"""Graph inputs of the DeepWORD relation network (docs/design.md §6), built once per image and cached per split.
 
 Per image, every annotated object becomes a node:
 - its box crop with a context margin, resized to S x S (OpenCV, no RoI Align), kept as uint8 RGB;
@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.geometry import pairwise_distance_ratio
+from stages.metrics import evaluated_mask
 from stages.word_format import VEHICLE, WHEEL, Record
 
 PriorFn = Callable[[np.ndarray], np.ndarray]
@@ -110,7 +111,7 @@ def normalised_boxes(xyxy: np.ndarray, width: float, height: float) -> np.ndarra
 
 
 def node_tensor(crops, coords):
-    """The S x S x 7 node input of DESIGN §6, channels first: RGB in [0, 1] then four constant planes.
+    """The S x S x 7 node input of docs/design.md §6, channels first: RGB in [0, 1] then four constant planes.
     crops (..., 3, S, S) uint8 tensor, coords (..., 4) -> (..., 7, S, S) float32 tensor."""
     import torch
 
@@ -231,6 +232,7 @@ class SplitInputs:
     owner: np.ndarray       # (I, N, N) uint8
     couple: np.ndarray      # (I, N, N) uint8
     role: np.ndarray        # (I, N) int8
+    evaluated: np.ndarray   # (I, N) bool: the wheels validation scores, those evaluation scores (docs/design.md §7)
     images: np.ndarray      # (I,) str
 
     def __len__(self) -> int:
@@ -258,8 +260,9 @@ def check_object_counts(records: Sequence[Record], max_objects: int) -> None:
 
 
 def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray], cfg: InputConfig,
-                wheel_vehicle: PriorFn, wheel_wheel: PriorFn) -> SplitInputs:
-    """Graphs and targets of every record, padded to cfg.max_objects."""
+                wheel_vehicle: PriorFn, wheel_wheel: PriorFn, min_box_px: float = 0.0) -> SplitInputs:
+    """Graphs and targets of every record, padded to cfg.max_objects; the evaluated wheels are those whose
+    shorter box side is at least ``min_box_px`` (``eval.min_box_px``)."""
     check_object_counts(records, cfg.max_objects)
     n_img, n = len(records), cfg.max_objects
     coords = np.zeros((n_img, n, 4), dtype=np.float32)
@@ -270,6 +273,7 @@ def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarr
     owner = np.zeros((n_img, n, n), dtype=np.uint8)
     couple = np.zeros((n_img, n, n), dtype=np.uint8)
     role = np.full((n_img, n), -1, dtype=np.int8)
+    evaluated = np.zeros((n_img, n), dtype=bool)
     crops, offsets = [], [0]
     for i, rec in enumerate(records):
         g = build_graph(rec, load_rgb(rec), cfg, wheel_vehicle, wheel_wheel)
@@ -279,8 +283,10 @@ def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarr
         coords[i, :k], classes[i, :k], valid[i, :k] = g.coords, g.classes, g.valid
         adj[i, :k, :k], cand[i, :k, :k] = g.adj, g.cand
         owner[i, :k, :k], couple[i, :k, :k], role[i, :k] = relation_targets(rec)
+        evaluated[i, :k] = evaluated_mask(rec.xyxy, rec.class_ids, min_box_px)
     size = cfg.input_size
     packed = np.concatenate(crops) if crops else np.zeros((0, 3, size, size), dtype=np.uint8)
     return SplitInputs(crops=packed, offsets=np.asarray(offsets, dtype=np.int64), coords=coords,
                        classes=classes, valid=valid, adj=adj, cand=cand, owner=owner, couple=couple, role=role,
+                       evaluated=evaluated,
                        images=np.asarray([r.image for r in records], dtype=str))

@@ -39,7 +39,7 @@ class GraphDataset(Dataset):
         self.crops = torch.from_numpy(split.crops)
         self.offsets = split.offsets
         self.tensors = {k: torch.from_numpy(getattr(split, k)) for k in
-                        ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role")}
+                        ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role", "evaluated")}
         self.hflip = hflip
 
     def __len__(self) -> int:
@@ -221,7 +221,7 @@ class RelationModule(L.LightningModule):
                  sync_dist=True)
         pred_owner, pred_couple = self.decide(outputs, batch)
         self.val_counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"],
-                                               batch["classes"], batch["valid"]))
+                                               batch["classes"], batch["evaluated"]))
 
     def on_validation_epoch_end(self):
         metrics = self.val_counts.compute()
@@ -245,5 +245,5 @@ def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> 
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
         pred_owner, pred_couple = module.decide(module(batch), batch)
         counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
-                                      batch["valid"]))
+                                      batch["evaluated"]))
     return counts.compute()

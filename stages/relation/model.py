@@ -1,4 +1,4 @@
-"""The DeepWORD relation network as a plain torch module (DESIGN §6), written to export to ONNX.
+"""The DeepWORD relation network as a plain torch module (docs/design.md §6), written to export to ONNX.
 
     x (B, N, 7, S, S) --backbone--> h (B, N, H) --GAT re-weighting of adj (Eq. 3-5)--> W'
     --residual graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings

@@ -22,6 +22,7 @@ from pathlib import Path
 from stages.checkpoints import best_and_latest
 from stages.lightning_logs import route_lightning_logs
 from stages.precision import BF16, FP32, resolve_precision
+from stages.progress import lightning_progress
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
 from stages.word_format import load_image, open_dataset
@@ -35,14 +36,17 @@ def _limit(records: list, limit) -> list:
     return records if limit is None else records[: int(limit)]
 
 
-def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, cache_dir: Path) -> SplitInputs:
+def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, cache_dir: Path,
+                 min_box_px: float) -> SplitInputs:
     """A split's graphs, from ``cache_dir/<name>.npz`` when an interrupted run already built them."""
     path = cache_dir / f"{name}.npz"
     meta = cache_dir / f"{name}.json"
-    key = json.dumps({"inputs": asdict(in_cfg), "images": [r.image for r in records]}, sort_keys=True)
+    key = json.dumps({"inputs": asdict(in_cfg), "min_box_px": min_box_px, "images": [r.image for r in records]},
+                     sort_keys=True)
     if path.is_file() and meta.is_file() and meta.read_text() == key:
         return SplitInputs.load(path)
-    split = build_split(records, lambda rec: load_image(root, rec), in_cfg, priors.wheel_vehicle, priors.wheel_wheel)
+    split = build_split(records, lambda rec: load_image(root, rec), in_cfg, priors.wheel_vehicle, priors.wheel_wheel,
+                        min_box_px)
     cache_dir.mkdir(parents=True, exist_ok=True)
     split.save(path)
     meta.write_text(key)
@@ -88,12 +92,13 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     model_cfg = ModelConfig.from_cfg(rel)
     check_object_counts(ds.records, in_cfg.max_objects)  # every split: export uses the same padding
     cache_dir = out_dir / "inputs"
+    min_box_px = float(rel.val_min_box_px)
     noise = DetectionNoise.from_cfg(rel.train.get("detection_noise"))
     train_records = with_simulated_detections(_limit(ds.subset("train"), rel.train.limit_train_images), noise,
                                               int(rel.train.seed), in_cfg.max_objects)
-    train = split_inputs("train", train_records, ds.root, in_cfg, priors, cache_dir)
+    train = split_inputs("train", train_records, ds.root, in_cfg, priors, cache_dir, min_box_px)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
-                       cache_dir)
+                       cache_dir, min_box_px)
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
 
@@ -108,7 +113,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
-                 history]
+                 history, *lightning_progress("relation")]
     logger = _tracking_logger()
     if logger is not None:  # the precision this machine trained in, beside the configured "auto"
         logger.log_hyperparams({"relation.precision": precision})

@@ -7,7 +7,8 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from pipeline_runs import TINY, finish_pipeline, start_pipeline
+
+from tests.experiments.pipeline_runs import TINY, finish_pipeline, start_pipeline
 
 # The shared smoke run (see ``smoke_store``), started by ``pytest_collection_modifyitems``.
 _smoke: dict = {}

@@ -16,9 +16,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
-from sqlite_store import fresh_store, fresh_store_for_uri
 
 from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+from tests.sqlite_store import fresh_store, fresh_store_for_uri
 
 REPO = Path(__file__).resolve().parents[2]
 CONF = REPO / "conf"

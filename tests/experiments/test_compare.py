@@ -1,4 +1,4 @@
-"""``pipeline.compare`` on a store filled the way the engine fills it: parent runs whose params are the
+"""``make compare`` (``stages.tables``) on a store filled the way the engine fills it: parent runs whose params are the
 flattened real config of each table row, plus runs that must be ignored (children, comparisons)."""
 
 from __future__ import annotations
@@ -7,12 +7,14 @@ import csv
 import shutil
 
 import pytest
-from pipeline_runs import compose_config
-from sqlite_store import fresh_store
 
-from pipeline.compare import PAPER_TABLE3, compare, main, paired_difference
 from pipeline.mlflow_ops import MlflowOps
+from pipeline.tables import paired_difference
 from pipeline.tracker import flatten_params
+from stages.paper import TABLE3_ACCURACY as PAPER_TABLE3
+from stages.tables.compare import compare, main
+from tests.experiments.pipeline_runs import compose_config
+from tests.sqlite_store import fresh_store
 
 
 def _parent(ops: MlflowOps, overrides: list[str], metrics: dict, name: str, params: dict | None = None) -> str:
@@ -39,8 +41,10 @@ def filled_store(tmp_path_factory):
     uri = fresh_store(path)
     ops = MlflowOps(uri, "deepword")
     ids = {
-        "conv_fc": _parent(ops, ["relation/backbone=conv_fc"], _eval(80.0), "smoke relation/backbone=conv_fc"),
-        "resnet18": _parent(ops, ["relation/backbone=resnet18"], _eval(85.0), "smoke relation/backbone=resnet18"),
+        "conv_fc": _parent(ops, ["experiment=table1", "relation/backbone=conv_fc"], _eval(80.0),
+                           "smoke relation/backbone=conv_fc"),
+        "resnet18": _parent(ops, ["experiment=table1", "relation/backbone=resnet18"], _eval(85.0),
+                            "smoke relation/backbone=resnet18"),
         "neg0.1": _parent(ops, ["experiment=table2", "table2_row=neg0.1"], _eval(70.0), "smoke table2_row=neg0.1"),
         "default": _parent(ops, ["experiment=table3"], _eval(90.0), "smoke experiment=table3"),
     }
@@ -50,7 +54,8 @@ def filled_store(tmp_path_factory):
     # params, and a previous comparison run.
     _parent(ops, ["table2_row=small_mask"], {"relation.params": 1.0}, "smoke until relation")
     child = ops.create_run("relation", {"stage": "relation"}, parent_id=ids["resnet18"])
-    ops.log(child, metrics=_eval(10.0), params=flatten_params(compose_config(["relation/backbone=resnet18"])))
+    ops.log(child, metrics=_eval(10.0),
+            params=flatten_params(compose_config(["experiment=table1", "relation/backbone=resnet18"])))
     ops.end(child)
     # the datasets sweep: seeds 43 and 44 (44 twice: the newer run counts), and a seed-45 run that stopped
     # before evaluation (left out)
@@ -63,7 +68,8 @@ def filled_store(tmp_path_factory):
     ids["rank2.43"] = _parent(ops, [], _eval(80.0), "smoke seed=43 rank2",
                               params={**datasets, "seed": "43", "experiment_name": "rank2"})
     other = ops.create_run("comparison", {"kind": "comparison"})
-    ops.log(other, metrics=_eval(5.0), params=flatten_params(compose_config(["relation/backbone=conv_fc"])))
+    ops.log(other, metrics=_eval(5.0),
+            params=flatten_params(compose_config(["experiment=table1", "relation/backbone=conv_fc"])))
     ops.end(other)
     return path, ids
 
@@ -155,3 +161,38 @@ def test_profile_filter_and_missing_experiment(store, tmp_path, capsys):
     assert not (tmp_path / "none" / "datasets.png").exists()
     with pytest.raises(SystemExit, match="no MLflow experiment 'nope'"):
         main(["--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path / "x")])
+
+
+def test_results_page_gets_the_tables_and_charts_with_commit_and_date_and_keeps_the_rest(store, tmp_path):
+    uri, _ = store
+    page = tmp_path / "docs" / "results.md"
+    page.parent.mkdir()
+    page.write_text("# Results\n\nHistory written by hand.\n")
+    for _ in range(2):  # a second run replaces the measured section instead of adding another
+        compare(uri, "deepword", tmp_path / "cmp", log=False, results=page)
+    text = page.read_text()
+    assert text.startswith("# Results\n\nHistory written by hand.\n")
+    assert text.count("Written by `make compare` on") == 1
+    assert "### Table 3: logic model vs DeepWORD on easy / hard / mixed" in text
+    assert "smoke experiment=table3 (abc, " in text  # the run's name, commit and date
+    assert "![comparison.png](results/comparison.png)" in text
+    assert (tmp_path / "docs" / "results" / "comparison.png").stat().st_size > 10_000
+
+
+def test_bev_table_takes_the_newest_run_with_footprint_metrics():
+    from pipeline.runs import RunRecord
+    from stages.tables.compare import bev_table
+
+    def run(name, metrics):
+        return RunRecord(name, name, 0, {}, metrics, {})
+
+    newest = {"bev.gt.deepword.paired.center_err_m": 0.16, "bev.gt.deepword.center_err_m": 0.24,
+              "bev.gt.box_bottom.paired.center_err_m": 0.8, "bev.detected.deepword.paired.recall": 90.0}
+    table, used = bev_table([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
+                             run("old", {"bev.gt.deepword.paired.center_err_m": 9.0})])
+    assert used == {"bev": "new"}
+    rows = {(r[0], r[1]): r[2:] for r in table.rows}
+    assert rows[("gt", "DeepWORD")][0] == 0.16 and rows[("gt", "DeepWORD")][4] == 0.24
+    assert rows[("gt", "box bottom (no relation)")][0] == 0.8 and ("gt", "Logic model") not in rows
+    assert rows[("detected", "DeepWORD")][3] == 90.0
+    assert bev_table([])[1] == {"bev": None} and not bev_table([])[0].rows

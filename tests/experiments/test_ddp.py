@@ -7,7 +7,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from pipeline_runs import TINY, run_pipeline
+
+from tests.experiments.pipeline_runs import TINY, run_pipeline
 
 pytestmark = pytest.mark.slow
 

@@ -1,6 +1,7 @@
 """The MLflow UI as a user sees it: `mlflow ui` on 127.0.0.1 over the smoke run's store, opened in headless
-Chromium (selenium + chromedriver). The deepword experiment, the parent run with its stage child runs,
-its tags and eval.* metrics, and the evaluate run's report artifact must be on screen."""
+Chromium (selenium + chromedriver). The deepword experiment opening on its runs table with the run's
+dataset, the parent run with its stage child runs, its tags and eval.* metrics, and the evaluate run's
+report artifact must be on screen."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-from pipeline_runs import MlflowServer
+
+from tests.experiments.pipeline_runs import MlflowServer
 
 pytestmark = pytest.mark.slow
 
@@ -82,8 +84,11 @@ def test_ui_shows_experiment_parent_run_children_tags_metrics_and_report(smoke_s
     evaluate = next(r for r in runs if r.info.run_name == "evaluate")
     base = f"{ui.uri}/#/experiments/{exp.experiment_id}"
 
-    browser.get(f"{base}/runs")
-    _page_shows(browser, ["deepword", "Run Name", parent.info.run_name[:12]])
+    # The experiment's landing page (no /runs in the address) is its runs table, not MLflow 3's GenAI
+    # overview, and the Dataset column names the run's dataset.
+    browser.get(base)
+    _page_shows(browser, ["deepword", "Run Name", "Dataset", "synword", parent.info.run_name[:12]])
+    assert "/runs" in browser.current_url and "traces" not in browser.current_url
     browser.save_screenshot(str(tmp_path / "experiment.png"))
 
     browser.get(f"{base}/runs/{parent.info.run_id}")

@@ -7,7 +7,8 @@ import json
 import subprocess
 
 import pytest
-from pipeline_runs import REPO, TINY, finish_pipeline, start_pipeline
+
+from tests.experiments.pipeline_runs import REPO, TINY, finish_pipeline, start_pipeline
 
 pytestmark = pytest.mark.slow
 
@@ -46,7 +47,7 @@ def test_every_run_records_seed_and_git_commit(smoke_store):
 
     client = MlflowClient(smoke_store["uri"])
     runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
-    assert len(runs) == 7  # the parent and its six stages
+    assert len(runs) == 8  # the parent and its seven stages
     for run in runs:
         assert run.data.tags["seed"] == "42", run.info.run_name
         commit = run.data.tags["git_commit"]

@@ -8,11 +8,12 @@ import json
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from pipeline_runs import CONF, compose_config, run_pipeline
 
-from pipeline.compare import TABLE2, matches
+from pipeline.runs import RunRecord
 from pipeline.sweep import format_table, read_jobs, stage_totals, summarize
 from pipeline.tracker import flatten_params
+from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, RowMatcher
+from tests.experiments.pipeline_runs import CONF, compose_config, run_pipeline
 
 
 def _hydra_cfg(overrides: list[str]):
@@ -61,7 +62,7 @@ def test_paper_tables_leave_the_detector_out_and_keep_every_stage_their_numbers_
 
     cfg = OmegaConf.create(compose_config([f"experiment={table}"]))
     selected, left_out = select_stages(load_stages(cfg), None, list(cfg.pipeline.skip))
-    assert left_out == {"detector": "pipeline.skip"}
+    assert left_out == {"detector": "pipeline.skip", "bev": "pipeline.skip"}
     assert selected == ["data", "priors", "relation", "export", "evaluate"]
 
 
@@ -93,11 +94,29 @@ def test_table1_compares_both_backbones_on_the_same_crops():
     assert sizes == {"conv_fc": 28, "resnet18": 28}
 
 
-def test_each_table2_row_is_the_configuration_compare_reads_as_that_row():
+def test_each_table_row_is_the_configuration_compare_reads_as_that_row():
+    matcher = RowMatcher()
+    rows = [*TABLE1, *TABLE2[1:], TABLE3_ROW]  # Table 2's Conv+fc row is Table 1's
     names = ["conv_fc", "neg0.1", "fewer_neg", "small_mask", "input56", "ex4"]
-    for name, row in zip(names, TABLE2, strict=True):
-        params = flatten_params(compose_config(["experiment=table2", f"table2_row={name}"]))
-        assert [r.label for r in TABLE2 if matches(r, params)] == [row.label], name
+    swept = {TABLE1[0]: ["experiment=table1", "relation/backbone=conv_fc"],
+             TABLE1[1]: ["experiment=table1", "relation/backbone=resnet18"], TABLE3_ROW: ["experiment=table3"]}
+    swept |= {row: ["experiment=table2", f"table2_row={name}"] for name, row in zip(names, TABLE2, strict=True)}
+    for row, overrides in swept.items():
+        run = RunRecord("id", "name", 0, flatten_params(compose_config(overrides)), {}, {})
+        expected = [TABLE1[0].label] if row == TABLE2[0] else [row.label]
+        if row in (TABLE2[-1], TABLE3_ROW):  # Table 2's 56_ex_4 is the default network, Table 3's row
+            expected = [TABLE2[-1].label, TABLE3_ROW.label]
+        assert [r.label for r in rows if matcher.matches(r, run)] == expected, overrides
+
+
+def test_an_ablated_run_is_never_the_default_row():
+    """Every ablation changes a relation field; none of them may fill the default Table 3 row. (ex4 and input56
+    ablate the Conv+fc network towards the default backbone, conv_fc_56_ex4: on it they change nothing.)"""
+    same_as_default = {"none", "ex4", "input56"}
+    matcher = RowMatcher()
+    for ablation in sorted(p.stem for p in (CONF / "ablation").glob("*.yaml")):
+        run = RunRecord("id", "name", 0, flatten_params(compose_config([f"ablation={ablation}"])), {}, {})
+        assert matcher.matches(TABLE3_ROW, run) == (ablation in same_as_default), ablation
 
 
 def _job(tmp_path, num: int, overrides: list[str], hits: dict[str, bool]):

@@ -7,7 +7,8 @@ import subprocess
 import sys
 
 import pytest
-from pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
+
+from tests.experiments.pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
 
 pytestmark = pytest.mark.slow
 

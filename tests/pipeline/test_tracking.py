@@ -84,3 +84,20 @@ def test_long_params_are_truncated_and_lists_are_json():
     flat = flatten_params({"a": {"b": "x" * 600, "c": [1, 2]}, "d": None})
     assert len(flat["a.b"]) == 500 and flat["a.b"].endswith("[truncated]")
     assert flat["a.c"] == "[1, 2]" and flat["d"] == "null"
+
+
+def test_experiment_opens_on_training_runs_and_a_dataset_stage_is_the_runs_dataset_input(toy):
+    from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+
+    client = mlflow.MlflowClient(toy.db_uri)
+    client.create_experiment("toy")  # made by another tool, without the kind: the engine adds it
+    cfg = toy.config(**{"pipeline.stages.a.dataset": "toyset"})
+    summary = run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    assert client.get_experiment_by_name("toy").tags[EXPERIMENT_KIND_TAG] == EXPERIMENT_KIND
+    parent = client.get_run(summary["mlflow_run_id"])
+    (logged,) = parent.inputs.dataset_inputs
+    assert logged.dataset.name == "toyset"
+    assert logged.dataset.digest == summary["stages"]["a"]["key"][:36]
+    assert logged.dataset.source == str(Path(summary["stages"]["a"]["output_dir"]).resolve())
+    stage_b = client.get_run(summary["stages"]["b"]["mlflow_run_id"])
+    assert not stage_b.inputs.dataset_inputs  # only the parent run, only for the declared stage

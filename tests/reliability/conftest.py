@@ -4,9 +4,10 @@ holding the tiny dataset's data and priors entries."""
 from __future__ import annotations
 
 import pytest
-from harness import run_in_process
-from sqlite_store import fresh_store
-from tiny_dataset import write_tiny_dataset
+
+from tests.reliability.harness import run_in_process
+from tests.reliability.tiny_dataset import write_tiny_dataset
+from tests.sqlite_store import fresh_store
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from hydra import compose, initialize_config_dir
-from sqlite_store import fresh_store
+
+from tests.sqlite_store import fresh_store
 
 REPO = Path(__file__).resolve().parents[2]
 

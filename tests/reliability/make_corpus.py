@@ -1,4 +1,4 @@
-"""Build the bad-input corpus: one tiny WORD-style dataset (DESIGN §4) per fault.
+"""Build the bad-input corpus: one tiny WORD-style dataset (docs/design.md §4) per fault.
 
 Each case is a directory ``corpus/<case>/`` with ``labels.jsonl``, its images and ``expected.json``: the
 line and field a reader must name and a fragment of its message. Every case has a valid record on line 1

@@ -1,4 +1,4 @@
-"""Every bad input of the corpus gives a DatasetError naming file, line and field (DESIGN §4, §10)."""
+"""Every bad input of the corpus gives a DatasetError naming file, line and field (docs/design.md §4, §10)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from make_corpus import CASES, CORPUS, Dataset, build_corpus, write_dataset
 
 from stages.word_format import (
     DatasetError,
@@ -20,6 +19,7 @@ from stages.word_format import (
     open_dataset,
     read_records,
 )
+from tests.reliability.make_corpus import CASES, CORPUS, Dataset, build_corpus, write_dataset
 
 CASE_NAMES = sorted(CASES)
 

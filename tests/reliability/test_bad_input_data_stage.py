@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
-from make_corpus import CASES, CORPUS, Dataset, write_dataset
 from omegaconf import OmegaConf
 
 from stages.data.stage import run as data_stage
 from stages.word_format import DatasetError
+from tests.reliability.make_corpus import CASES, CORPUS, Dataset, write_dataset
 
 REPO = Path(__file__).resolve().parents[2]
 UP_FRONT = sorted(c for c in CASES if CASES[c][4] in ("labels", "files"))

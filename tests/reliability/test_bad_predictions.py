@@ -1,5 +1,5 @@
 """The scoring path: a detector predictions file with problems is refused with file, line and field,
-never scored silently (DESIGN §4: predictions use the dataset format with real scores)."""
+never scored silently (docs/design.md §4: predictions use the dataset format with real scores)."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import json
 from pathlib import Path
 
 import pytest
-from make_corpus import Dataset, write_dataset
 from omegaconf import OmegaConf
 
 from stages.evaluate.methods import DETECTOR_PREDICTIONS, EvalContext, detected_boxes
 from stages.word_format import Dataset as WordDataset
 from stages.word_format import DatasetError, read_records
+from tests.reliability.make_corpus import Dataset, write_dataset
 
 
 def context(tmp_path: Path, prediction_lines: list[str]) -> EvalContext:

@@ -1,4 +1,4 @@
-"""The cache under faults (DESIGN §8, §10): a tampered entry is never used, a failed write leaves the
+"""The cache under faults (docs/design.md §8, §10): a tampered entry is never used, a failed write leaves the
 cache as it was, an unreachable tracking server stops the run before any stage. In-process, on a tiny
 WORD dataset, stopping early (``pipeline.until``) to stay fast."""
 
@@ -11,9 +11,9 @@ import socket
 import time
 
 import pytest
-from harness import complete_entries, run_in_process
 
 from pipeline.errors import PipelineError
+from tests.reliability.harness import complete_entries, run_in_process
 
 
 def free_port() -> int:

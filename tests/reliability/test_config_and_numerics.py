@@ -8,12 +8,12 @@ import pickle
 
 import pytest
 import torch
-from harness import complete_entries, compose_cfg, run_in_process
 from hydra.errors import MissingConfigException
 
 from pipeline.dag import load_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import key_parts
+from tests.reliability.harness import complete_entries, compose_cfg, run_in_process
 
 
 def nothing_cached_for_relation(cache) -> bool:

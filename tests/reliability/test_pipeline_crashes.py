@@ -10,9 +10,10 @@ import time
 from pathlib import Path
 
 import pytest
-from harness import complete_entries, copy_upstream, pipeline_command, pipeline_env
-from make_corpus import CORPUS
-from tiny_dataset import write_tiny_dataset
+
+from tests.reliability.harness import complete_entries, copy_upstream, pipeline_command, pipeline_env
+from tests.reliability.make_corpus import CORPUS
+from tests.reliability.tiny_dataset import write_tiny_dataset
 
 pytestmark = pytest.mark.slow
 

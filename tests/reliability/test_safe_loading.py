@@ -1,4 +1,4 @@
-"""Checkpoints and weights load with ``weights_only=True`` (DESIGN §10): a file that would run code when
+"""Checkpoints and weights load with ``weights_only=True`` (docs/design.md §10): a file that would run code when
 unpickled is refused by every loader, and no code path loads pickles another way."""
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ def _relation_dir(tmp_path: Path) -> Path:
 
 
 def _detector_dir(tmp_path: Path) -> Path:
-    from harness import compose_cfg
     from omegaconf import OmegaConf
 
     from stages.detector.model import model_config
+    from tests.reliability.harness import compose_cfg
 
     cfg = compose_cfg(tmp_path, tmp_path / "cache", "sqlite:///unused.db")
     (tmp_path / "model.json").write_text(json.dumps(model_config(OmegaConf.to_container(cfg.detector, resolve=True))))

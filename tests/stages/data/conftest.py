@@ -1,7 +1,8 @@
 """Shared fixture of the data stage tests: one generated sample."""
 
 import pytest
-from data_helpers import synword_cfg
+
+from tests.stages.data.data_helpers import synword_cfg
 
 
 @pytest.fixture(scope="session")

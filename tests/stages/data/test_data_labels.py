@@ -1,12 +1,12 @@
 """Labels made from the render: consistency, the paper's hard cases, splits by frame."""
 
 import numpy as np
-from data_helpers import synword_cfg
 
 from stages.data.stats import boxes_meet_at_wheel, make_splits, multi_box_wheels, split_metrics
 from stages.data.synword import FrameGenerator
 from stages.geometry import containment
 from stages.word_format import VEHICLE, WHEEL, Record, read_records, write_records
+from tests.stages.data.data_helpers import synword_cfg
 
 
 def test_records_are_valid_word_records_with_images(synword_sample):
@@ -68,7 +68,7 @@ def test_occluded_and_tiny_objects_are_not_annotated():
     vstats = [ObjectStats(100, 100, (10, 10, 60, 40))] + [ObjectStats(100, 10, (0, 0, 30, 30))] * (nv - 1)
     wstats = [ObjectStats(50, 50, (20, 30, 30, 40)), ObjectStats(50, 50, (40, 30, 43, 40))]
     wstats += [ObjectStats(0, 0, None)] * (4 * nv - 2)
-    rec = gen.labels(3, "front", scene, vstats, wstats, rng)
+    rec = gen.labels(3, gen.tables(3)[0].cam, scene, vstats, wstats, rng)
     # vehicle 0 fully visible; the others 10 % visible (< min_visible_fraction); wheel 1 is 3 px wide
     assert rec.n_vehicles == 1 and rec.n_wheels == 1
     v, w, role = rec.relations[0]

@@ -5,12 +5,12 @@ import json
 import cv2
 import numpy as np
 import pytest
-from data_helpers import synword_cfg
 from omegaconf import OmegaConf
 
 from stages.data.stage import run
 from stages.data.synword import FrameGenerator, generate
 from stages.word_format import DatasetError, open_dataset
+from tests.stages.data.data_helpers import synword_cfg
 
 METRICS = [f"data.{s}.{m}" for s in ("train", "val", "test")
            for m in ("images", "vehicles_per_image", "wheels_per_image", "multi_box_wheel_share")]

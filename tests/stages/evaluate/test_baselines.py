@@ -1,8 +1,10 @@
 """The logic-model baselines on Fig. 2-like cases, their fitting on train, and their JSON round trip."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
-from tiny_word import make_record
+from omegaconf import OmegaConf
 
 from stages.evaluate.baselines import (
     CoupleRule,
@@ -13,6 +15,7 @@ from stages.evaluate.baselines import (
     PairFeatures,
     PairStats,
     PriorMethod,
+    SearchGrids,
     assign_with_capacity,
     baseline_from_params,
     baseline_params,
@@ -23,9 +26,12 @@ from stages.evaluate.baselines import (
     owner_objective,
     prepare_train,
 )
-from stages.evaluate.metrics import score_records
+from stages.metrics import score_records
 from stages.priors.mixture import Mixture1D, Priors, make_pair_prior
 from stages.word_format import Record
+from tests.stages.evaluate.tiny_word import make_record
+
+GRIDS = SearchGrids.from_cfg(OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids)
 
 NO_COUPLES = CoupleRule(centre=0.0, tolerance=-1.0)
 
@@ -96,8 +102,9 @@ def test_fitting_on_train_and_logic_plus_at_least_logic():
     for i, r in enumerate(test):
         r.image = f"t{i}.png"
     images = prepare_train(train, 0.0, 1000, seed=0)
-    rule = fit_couple_rule(images)
-    logic, plus = fit_logic(images, rule), fit_logic_plus(images, rule, rounds=1)
+    rule = fit_couple_rule(images, GRIDS.couple_tolerance)
+    logic = fit_logic(images, rule, GRIDS.logic_iou)
+    plus = fit_logic_plus(images, rule, GRIDS.logic_plus, rounds=1)
     plus_owners = [plus.owners_from(PairFeatures.of(im.obj)) for im in images]
     assert owner_objective(images, plus_owners) >= owner_objective(images, [logic.owners(im.obj) for im in images])
     scores = {m.name: score_records(test, {r.image: m.predict(r) for r in test}).percentages()
@@ -123,7 +130,8 @@ def test_prior_method_picks_highest_prior():
     assert owner_map(method.predict(r)) == {2: 0}
     assert owner_map(PriorMethod(toy_priors(), 1.01, 0.5).predict(r)) == {}
     rng = np.random.default_rng(1)
-    fitted = fit_prior(prepare_train([make_record(rng, i, 3) for i in range(10)], 0.0, 100, 0), toy_priors())
+    fitted = fit_prior(prepare_train([make_record(rng, i, 3) for i in range(10)], 0.0, 100, 0), toy_priors(),
+                       GRIDS.prior_owner, GRIDS.prior_couple)
     assert 0.0 <= fitted.threshold <= 1.0
 
 

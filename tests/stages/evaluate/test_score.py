@@ -4,10 +4,10 @@ malformed predictions files."""
 import json
 
 import pytest
-from tiny_word import build
 
 from stages.evaluate.score import main
 from stages.word_format import read_records, write_records
+from tests.stages.evaluate.tiny_word import build
 
 
 @pytest.fixture(scope="module")

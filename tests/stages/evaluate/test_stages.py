@@ -1,22 +1,24 @@
 """The priors and evaluate stages' run() on a tiny hand-built dataset directory."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
-from tiny_word import build
 
 from stages.evaluate.methods import DETECTOR_PREDICTIONS
 from stages.evaluate.stage import run as run_evaluate
 from stages.priors.mixture import load_priors
 from stages.priors.stage import run as run_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
+from tests.stages.evaluate.tiny_word import build
 
 PRIORS_CFG = {"mode": "prior", "components": [1, 3], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
               "plot_bins": 30}
 EVAL_CFG = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "logic_plus", "prior"],
-            "box_sources": ["gt", "detected"], "fit_images": 60, "gallery_images": 2}
+            "box_sources": ["gt", "detected"], "fit_images": 60, "gallery_images": 2,
+            "baseline_grids": OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids}
 
 
 @pytest.fixture(scope="module")

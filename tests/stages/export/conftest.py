@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
-from tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from tests.stages.export.tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
 W, H = 160, 120
 def car_row(rng: np.random.Generator, n_cars: int):
@@ -125,7 +125,8 @@ def evaluated(upstream, exported, tmp_path_factory) -> Path:
 
     out = tmp_path_factory.mktemp("evaluate")
     cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "prior", "deepword", "deepword_int8"],
-           "box_sources": ["gt", "detected"], "fit_images": 20, "gallery_images": 0}
+           "box_sources": ["gt", "detected"], "fit_images": 20, "gallery_images": 0,
+           "baseline_grids": OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids}
     run(OmegaConf.create({"eval": cfg, "seed": 0}), {**upstream, "export": exported[0]}, out)
     return out
 
@@ -137,9 +138,12 @@ def generated_images(tmp_path_factory) -> list[Path]:
 
     cfg = OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[3] / "conf/data/synword.yaml"), resolve=True)
     cfg["image_size"] = [320, 240]
+    cfg["lens"]["randomise"] = False  # the nominal rig: every image 320x240
     out = tmp_path_factory.mktemp("frame")
     paths = []
-    for camera, rgb, _ in FrameGenerator(cfg, seed=0).render_frame(0):
+    for camera, rgb, rec in FrameGenerator(cfg, seed=0).render_frame(0):
         paths.append(out / f"{camera}.png")
         cv2.imwrite(str(paths[-1]), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        # each camera's calibration as a WoodScape-style JSON file beside its image
+        (out / f"{camera}.json").write_text(json.dumps({**rec.extra["calibration"], "name": camera}))
     return paths

@@ -1,6 +1,7 @@
 """The evaluate stage with the export stage as input: DeepWORD rows and detected boxes come from ONNX."""
 
 import json
+from pathlib import Path
 
 
 def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
@@ -20,11 +21,11 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     """``pipeline.skip=[detector]`` (the paper tables' sweeps): export and evaluate run without it."""
     import pytest
     from omegaconf import OmegaConf
-    from tiny_models import EXPORT_CFG
 
     from stages.evaluate.stage import run as evaluate
-    from stages.export.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
     from stages.export.stage import run as export
+    from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
+    from tests.stages.export.tiny_models import EXPORT_CFG
 
     relation_only = {k: v for k, v in upstream.items() if k != "detector"}
     out = tmp_path / "export"
@@ -40,7 +41,8 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     ev = tmp_path / "evaluate"
     ev.mkdir()
     cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "deepword"], "box_sources": ["gt", "detected"],
-           "fit_images": 20, "gallery_images": 0}
+           "fit_images": 20, "gallery_images": 0,
+           "baseline_grids": OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids}
     evaluate(OmegaConf.create({"eval": cfg, "seed": 0}), {**relation_only, "export": out}, ev)
     report = json.loads((ev / "report.json").read_text())
     assert set(report["results"]) == {"gt"} and set(report["results"]["gt"]) == {"logic", "deepword"}

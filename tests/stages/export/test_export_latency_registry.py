@@ -40,7 +40,7 @@ def test_register_models_logs_and_registers_both_with_metrics(exported, tmp_path
     from mlflow.tracking import MlflowClient
 
     from stages.export.registry import REGISTERED_NAMES, register_models
-    from stages.export.runtime import DETECTOR_FILE, RELATION_FILES
+    from stages.inference.runtime import DETECTOR_FILE, RELATION_FILES
 
     monkeypatch.chdir(tmp_path)  # artifacts of the sqlite store go under the working directory
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

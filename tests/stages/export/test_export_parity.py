@@ -4,15 +4,15 @@ detector, a deliberately diverging model that parity must catch, INT8, and the n
 import numpy as np
 import pytest
 import torch
-from tiny_models import DETECTOR, RELATION_MODEL
 
-from stages.export.decode import decode_couples, decode_owners
 from stages.export.onnx_export import FoldedBackbone, export_detector, export_relation, relation_example
 from stages.export.parity import ParityError, ParityReport, detector_parity, relation_parity
-from stages.export.runtime import RELATION_OUTPUTS, ort_session
+from stages.inference.decode import decode_couples, decode_owners
+from stages.inference.runtime import RELATION_OUTPUTS, ort_session
 from stages.relation import decode as torch_decode
 from stages.relation.inputs import ImageGraph, node_tensor
 from stages.relation.model import ModelConfig, RelationNet
+from tests.stages.export.tiny_models import DETECTOR, RELATION_MODEL
 
 torch.set_num_threads(1)
 

@@ -5,7 +5,7 @@ import json
 import onnx
 import pytest
 
-from stages.export.runtime import BUNDLE_FILE, DETECTOR_FILE, RELATION_FILES
+from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, RELATION_FILES
 
 
 def test_stage_writes_checked_models_and_metrics(exported):

@@ -16,7 +16,7 @@ from stages.export.onnx_export import (
     plane_grid,
     plane_responses,
 )
-from stages.export.runtime import ort_session
+from stages.inference.runtime import ort_session
 from stages.relation.inputs import node_tensor
 from stages.relation.model import ModelConfig, RelationNet
 

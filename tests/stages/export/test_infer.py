@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stages.cli import main as deepword
-from stages.export.infer import main as infer
+from stages.inference.infer import main as infer
 from stages.word_format import read_records
 
 REPO = Path(__file__).parents[3]
@@ -102,7 +102,7 @@ def test_run_id_resolves_to_the_runs_cache_entries(upstream, exported, evaluated
 
     from mlflow.tracking import MlflowClient
 
-    from stages.export.resolve import ResolveError, stage_dirs
+    from stages.inference.resolve import ResolveError, stage_dirs
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(tracking_uri=uri)
@@ -139,3 +139,30 @@ def test_deepword_command_dispatches_and_rejects_unknown_commands(capsys):
     with pytest.raises(SystemExit) as done:
         deepword(["score", "--help"])
     assert done.value.code == 0 and "--pred" in capsys.readouterr().out
+
+
+def test_infer_with_a_calibration_file_writes_footprints_and_a_top_view(exported, generated_images, tmp_path, capsys):
+    from stages.bev.apply import PRIOR_FILE
+    from stages.bev.footprint import FootprintPrior
+
+    bev = tmp_path / "bev"
+    bev.mkdir()
+    prior = FootprintPrior(width=1.8, length=4.5, wheelbase=2.7, length_slope=1.0, length_offset=1.8,
+                           track_inset=0.1, contact_shift=0.3, box_shift=2.5, height=1.5)
+    (bev / PRIOR_FILE).write_text(json.dumps(prior.to_json()))
+    image = generated_images[1]
+    out = tmp_path / "out"
+    args = [str(image), "--out", str(out), "--export", str(exported[0]), "--bev", str(bev)]
+    assert infer([*args, "--calibration", str(image.with_suffix(".json"))]) == 0
+    pred = read_records(out / "labels.jsonl", root=image.parent)[0]
+    vehicles = {int(b) for b, c in zip(pred.box_ids, pred.class_ids, strict=True) if c == 0}
+    assert {int(k) for k, v in pred.extra["objects_3d"].items() if "center" in v} == vehicles
+    overlay = cv2.imread(str(out / "overlays" / f"{image.stem}.png"))
+    assert overlay.shape[0] == 240 and overlay.shape[1] > 320 + 150  # the top view beside the overlay
+
+    bad = json.loads(image.with_suffix(".json").read_text())
+    bad["intrinsic"]["width"] = 640
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    assert infer([*args, "--calibration", str(tmp_path / "bad.json")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.json: field 'intrinsic.width'" in err and "Traceback" not in err

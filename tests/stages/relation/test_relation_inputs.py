@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import relation_data as rd
 import torch
 
 from stages.relation.inputs import (
@@ -18,6 +17,7 @@ from stages.relation.inputs import (
     relation_targets,
 )
 from stages.word_format import Record
+from tests.stages.relation import relation_data as rd
 
 
 def test_crop_keeps_box_place_and_blacks_out_outside_image():

@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
-import relation_data as rd
 import torch
 
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
 from stages.relation.inputs import InputConfig, node_tensor
 from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
+from tests.stages.relation import relation_data as rd
 
 torch.set_num_threads(1)
 
@@ -149,13 +149,15 @@ def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     pred[0, 1, 0] = True                           # wheel 1 right, wheel 2 missed, wheel 3 (no owner) right
     couple_t = torch.zeros(1, 4, 4, dtype=torch.uint8)
     couple_t[0, 1, 2] = couple_t[0, 2, 1] = 1
-    m = metrics_from_counts({k: float(v) for k, v in relation_counts(pred, owner_t, couples, couple_t, classes).items()})
+    every_wheel = torch.ones(1, 4, dtype=torch.bool)
+    counts = relation_counts(pred, owner_t, couples, couple_t, classes, every_wheel)
+    m = metrics_from_counts({k: float(v) for k, v in counts.items()})
     assert m["wheel_acc"] == pytest.approx(200 / 3) and m["image_acc"] == 0.0
     assert m["pair_precision"] == 100.0 and m["pair_recall"] == 50.0 and m["couple_f1"] == 100.0
     assert np.isclose(m["pair_f1"], 200 / 3)
-    # wheel 2 (owned, missed) masked out of the graph (small_mask_px): not counted, the image is right
-    valid = torch.tensor([[True, True, False, True]])
-    counts = relation_counts(pred, owner_t, couples, couple_t, classes, valid)
+    # wheel 2 (owned, missed) not evaluated (under eval.min_box_px): not counted, the image is right
+    evaluated = torch.tensor([[True, True, False, True]])
+    counts = relation_counts(pred, owner_t, couples, couple_t, classes, evaluated)
     m = metrics_from_counts({k: float(v) for k, v in counts.items()})
     assert counts["wheels"] == 2 and m["wheel_acc"] == 100.0 and m["image_acc"] == 100.0
     assert m["pair_recall"] == 100.0 and counts["couple_tp"] + counts["couple_fn"] == 0  # couple (1, 2) is out too

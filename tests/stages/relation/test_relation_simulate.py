@@ -1,9 +1,9 @@
 import numpy as np
-import relation_data as rd
 
 from stages.geometry import pairwise_iou
 from stages.relation.inputs import relation_targets
 from stages.relation.simulate import DetectionNoise, simulate_detections, with_simulated_detections
+from tests.stages.relation import relation_data as rd
 
 NOISY = DetectionNoise(copies=1, jitter=0.1, drop=0.3, false_positives=0.5)
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import pytest
-import relation_data as rd
 import torch
 from omegaconf import OmegaConf
 
@@ -22,6 +21,7 @@ from stages.relation.lightning import (
     score_split,
 )
 from stages.relation.model import ModelConfig
+from tests.stages.relation import relation_data as rd
 
 torch.set_num_threads(1)
 TINY = ModelConfig(backbone="conv_fc", input_size=28, expansion=1, hidden=64, embed_dim=32, gat_hidden=32)
@@ -168,7 +168,8 @@ def _stage_cfg(**train):
     rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
                                 "precision": "auto", "threads": 1})  # bf16 backbone where the CPU has it
-    return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0})
+    evaluation = OmegaConf.load("conf/eval/default.yaml")  # relation.val_min_box_px follows eval.min_box_px
+    return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0, "eval": evaluation})
 
 
 def _run_stage(root, out_name: str, **train) -> tuple[dict, Path]:

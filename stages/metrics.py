@@ -1,4 +1,5 @@
-"""DESIGN §7 metrics of predicted records against ground truth, in percent.
+"""The docs/design.md §7 metrics, in percent: the one implementation, used by relation validation (model
+selection), baseline fitting and evaluation.
 
 Per image, predicted boxes are first matched to ground-truth boxes of their class by IoU >= ``match_iou``,
 greedily in order of decreasing score (each ground-truth box matched at most once); with predictions that
@@ -17,12 +18,16 @@ Definitions (micro-averaged over the images of a subset):
 - couple_f1 over wheel pairs, unordered (the front/rear order is a role, scored by neither metric).
 - image_acc: share of images in which every evaluated wheel is right; an image without evaluated
   wheels (e.g. no vehicles, no wheels) is vacuously right.
+- Every caller counts through ``count_relations`` and turns counts into percentages with
+  ``Counts.percentages``: the evaluate stage on records (``score_image``), the baselines on their owner
+  indices, relation validation on its decoded matrices.
 - Empty denominators never give NaN: a ratio with nothing to count (0/0) is 100 (nothing was
   missed / nothing wrong was claimed); F1 with precision + recall = 0 is 0.
 """
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -69,11 +74,52 @@ def _f1(p: float, r: float) -> float:
     return 2 * p * r / (p + r) if p + r > 0 else 0.0
 
 
+def evaluated_mask(xyxy: np.ndarray, class_ids: np.ndarray, min_box_px: float) -> np.ndarray:
+    """Which boxes are evaluated wheels: wheels whose shorter side is at least ``min_box_px`` pixels."""
+    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
+    short = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
+    return (np.asarray(class_ids) == WHEEL) & (short >= min_box_px)
+
+
 def evaluated_wheel_ids(gt: Record, min_box_px: float) -> set[int]:
     """Box ids of the ground-truth wheels every method is scored on."""
-    xyxy, ids = gt.xyxy, gt.box_ids
-    short = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
-    return {int(i) for i, c, s in zip(ids, gt.class_ids, short, strict=True) if c == WHEEL and s >= min_box_px}
+    return {int(i) for i in gt.box_ids[evaluated_mask(gt.xyxy, gt.class_ids, min_box_px)]}
+
+
+def count_relations(evaluated: set[int], ignored: set[int], true_relations: Iterable[tuple[int, int]],
+                    true_couples: Iterable[tuple[int, int]], claimed_relations: Sequence[tuple[Hashable, Hashable]],
+                    claimed_couples: Sequence[tuple[Hashable, Hashable]], found: set[int] | None = None) -> Counts:
+    """§7 counts of one image, every id a ground-truth box id (or a stand-in for an unmatched prediction).
+
+    ``evaluated``: the scored wheels; ``ignored``: the other ground-truth wheels, whose claims count neither
+    way; ``true_*``: (vehicle, wheel) relations and wheel couples of the ground truth; ``claimed_*``: the
+    prediction's, one entry per claim (a repeated claim is a false positive); ``found``: the ground-truth
+    wheels a predicted box stands for (None: all; a wheel not found cannot be right)."""
+    true_pairs = {(v, w) for v, w in true_relations if w in evaluated}
+    claimed = [(v, w) for v, w in claimed_relations if w not in ignored]
+    pair_tp = len(true_pairs & set(claimed))
+
+    true_c = {frozenset(c) for c in true_couples if set(c) <= evaluated}
+    claimed_c = [frozenset(c) for c in claimed_couples]
+    claimed_c = [c for c in claimed_c if not (c & ignored)]
+    couple_tp = len(true_c & set(claimed_c))
+
+    true_owner = {w: v for v, w in true_relations}
+    pred_owners: dict[Hashable, set[Hashable]] = {}
+    for v, w in claimed_relations:
+        pred_owners.setdefault(w, set()).add(v)
+    correct = 0
+    for w in evaluated:
+        if found is not None and w not in found:
+            continue
+        owners = pred_owners.get(w, set())
+        if len(owners) > 1:
+            continue
+        correct += (next(iter(owners)) if owners else None) == true_owner.get(w)
+    return Counts(images=1, images_correct=int(correct == len(evaluated)), wheels=len(evaluated),
+                  wheels_correct=correct, pair_tp=pair_tp, pair_fp=len(claimed) - pair_tp,
+                  pair_fn=len(true_pairs) - pair_tp, couple_tp=couple_tp, couple_fp=len(claimed_c) - couple_tp,
+                  couple_fn=len(true_c) - couple_tp)
 
 
 def match_boxes(gt: Record, pred: Record, match_iou: float = 0.5) -> dict[int, int]:
@@ -98,44 +144,15 @@ def match_boxes(gt: Record, pred: Record, match_iou: float = 0.5) -> dict[int, i
 def score_image(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> Counts:
     """§7 counts of one image's prediction against its ground truth."""
     evaluated = evaluated_wheel_ids(gt, min_box_px)
-    all_gt_wheels = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL}
-    ignored = all_gt_wheels - evaluated
+    ignored = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL} - evaluated
     to_gt = match_boxes(gt, pred, match_iou)
 
     def gt_id(pred_id: int) -> int | str:
         return to_gt.get(int(pred_id), _UNMATCHED)
 
-    # pairs (vehicle, wheel)
-    true_pairs = {(v, w) for v, w, _ in gt.relations if w in evaluated}
-    claimed = [(gt_id(v), gt_id(w)) for v, w, _ in pred.relations]
-    claimed = [p for p in claimed if p[1] not in ignored]
-    pair_tp = len(true_pairs & set(claimed))
-
-    # couples, unordered
-    true_couples = {frozenset(p) for p in gt.wheel_pairs if set(p) <= evaluated}
-    claimed_c = [frozenset((gt_id(a), gt_id(b))) for a, b in pred.wheel_pairs]
-    claimed_c = [c for c in claimed_c if not (c & ignored)]
-    couple_tp = len(true_couples & set(claimed_c))
-
-    # owners of evaluated wheels
-    true_owner = gt.owner_of()
-    pred_owners: dict[int, set[int]] = {}
-    for v, w, _ in pred.relations:
-        pred_owners.setdefault(int(w), set()).add(gt_id(v))
-    gt_to_pred = {g: p for p, g in to_gt.items()}
-    correct = 0
-    for w in evaluated:
-        if w not in gt_to_pred:
-            continue  # missed by the detector: cannot be right
-        owners = pred_owners.get(gt_to_pred[w], set())
-        if len(owners) > 1:
-            continue
-        predicted = next(iter(owners)) if owners else None
-        correct += predicted == true_owner.get(w)
-    return Counts(images=1, images_correct=int(correct == len(evaluated)), wheels=len(evaluated),
-                  wheels_correct=correct, pair_tp=pair_tp, pair_fp=len(claimed) - pair_tp,
-                  pair_fn=len(true_pairs) - pair_tp, couple_tp=couple_tp, couple_fp=len(claimed_c) - couple_tp,
-                  couple_fn=len(true_couples) - couple_tp)
+    return count_relations(evaluated, ignored, [(v, w) for v, w, _ in gt.relations], gt.wheel_pairs,
+                           [(gt_id(v), gt_id(w)) for v, w, _ in pred.relations],
+                           [(gt_id(a), gt_id(b)) for a, b in pred.wheel_pairs], found=set(to_gt.values()))
 
 
 def score_records(gts: list[Record], preds: dict[str, Record], min_box_px: float = 0.0,

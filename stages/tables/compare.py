@@ -1,183 +1,78 @@
-"""``python -m pipeline.compare`` (``make compare``): the paper's Tables 1-3, and DeepWORD against
-``logic_plus`` over several datasets, from the runs in MLflow.
+"""``make compare`` (``python -m stages.tables``): the paper's Tables 1-3, and DeepWORD against ``logic_plus``
+over several datasets, from the pipeline's runs in MLflow.
 
-Reads the pipeline's parent runs (one per ``python -m pipeline`` invocation; every stage's metrics are on
-it, DESIGN §8) and picks, for each table row, the newest finished run whose *resolved parameters* are
-that row's configuration, whichever command produced it (a sweep of ``make ablations`` or a single run).
-Writes ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's),
-``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed, the newest run of each) and logs
-them as artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment.
-
-Paper numbers: only Table 3's accuracies (logic model 92.91 / 71.83 / 79.90, DeepWORD 99.17 / 94.35 /
-95.14 on easy / hard / mixed) are transcribed; Tables 1-2's paper column says ``n/a`` rather than
-numbers we could not verify.
+Each table row is a configuration given by its Hydra overrides (``rows.py``); a run is that row when its
+logged parameters equal the row's composed configuration (``RowMatcher``), whichever command produced it
+(a sweep of ``make ablations`` or a single run); the newest such run is used. Writes
+``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's,
+``stages.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed), ``bev.{md,csv}`` (bird's-eye-view
+footprints per method, docs/bev.md, of the newest run with them), logs them as
+artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment, and with
+``--results FILE`` writes the tables and charts, with the commit and date of every run, into that page.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import os
+import shutil
 import statistics
+import subprocess
 import sys
-from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
-SUBSETS = ("easy", "hard", "mixed")
-NOT_AVAILABLE = "n/a"
+from pipeline.runs import RunRecord, load_runs
+from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
+from stages import paper
+from stages.evaluate.report import metric_name
+from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
+from stages.word_format import SUBSETS
+
 COMPARISON_TAG = "kind"
 COMPARISON_KIND = "comparison"
-PARENT_TAG = "mlflow.parentRunId"
+RESULTS_BEGIN = "<!-- measured by make compare: begin -->"
+RESULTS_END = "<!-- measured by make compare: end -->"
 
-# Table 3 accuracy (%) of the DeepWORD paper, per subset.
-PAPER_TABLE3 = {"logic": {"easy": 92.91, "hard": 71.83, "mixed": 79.90},
-                "deepword": {"easy": 99.17, "hard": 94.35, "mixed": 95.14}}
 TABLE3_METHODS = {"logic": "Logic model", "logic_plus": "Logic+ (ours)", "prior": "GMM prior (ours)",
                   "deepword": "DeepWORD", "deepword_int8": "DeepWORD INT8 (ours)"}
 
-# Relation settings that the ablations change, at their values without any ablation (conf/relation).
-ABLATION_DEFAULTS = {"relation.loss.neg_weight": 1.0, "relation.min_prior": 0.0, "relation.small_mask_px": 0,
-                     "relation.model.gat": True, "relation.adjacency": "prior"}
-
-
-@dataclass(frozen=True)
-class Row:
-    """A table row: the backbone it needs and the ablation settings it changes (the others at defaults).
-    ``changed`` maps a setting to its required value, or to None for 'anything but the default'."""
-
-    label: str
-    backbone: tuple[str, int | None, int | None]   # name, input_size, expansion (None: any)
-    changed: dict = field(default_factory=dict)
-
-
-CONV_FC = ("conv_fc", 28, 1)
-TABLE1 = (Row("Conv+fc", CONV_FC), Row("ResNet-18", ("resnet18", None, None)))
-TABLE2 = (Row("Conv+fc", CONV_FC),
-          Row("Neg0.1", CONV_FC, {"relation.loss.neg_weight": 0.1}),
-          Row("-Neg", CONV_FC, {"relation.min_prior": None}),
-          Row("-Sma", CONV_FC, {"relation.small_mask_px": None}),
-          Row("56", ("conv_fc", 56, 1)),
-          Row("56_ex_4", ("conv_fc", 56, 4)))
-TABLE3_ROW = Row("DeepWORD (default)", ("conv_fc", 56, 4))
-
-ACC_METRIC = "eval.gt.deepword.mixed.wheel_acc"
-IMAGE_ACC_METRIC = "eval.gt.deepword.mixed.image_acc"
+ACC_METRIC = metric_name("gt", "deepword", "mixed", "wheel_acc")
+IMAGE_ACC_METRIC = metric_name("gt", "deepword", "mixed", "image_acc")
 LATENCY_METRIC = "export.relation.ms_per_img_b1"
 PARAMS_METRIC = "relation.params"
 
 
-def _value(text: str | None):
-    """A flattened config value back to Python (the engine logs non-strings as JSON)."""
-    if text is None:
-        return None
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text
-
-
-def matches(row: Row, params: dict[str, str]) -> bool:
-    name, size, expansion = row.backbone
-    if _value(params.get("relation.backbone.name")) != name:
-        return False
-    if size is not None and _value(params.get("relation.backbone.input_size")) != size:
-        return False
-    if expansion is not None and _value(params.get("relation.backbone.expansion")) != expansion:
-        return False
-    for key, default in ABLATION_DEFAULTS.items():
-        value = _value(params.get(key))
-        if key not in row.changed:
-            if value != default:
-                return False
-        elif row.changed[key] is None:
-            if value == default:
-                return False
-        elif value != row.changed[key]:
-            return False
-    return True
-
-
-@dataclass
-class RunRecord:
-    run_id: str
-    name: str
-    start_time: int
-    params: dict[str, str]
-    metrics: dict[str, float]
-    tags: dict[str, str]
-
-
-def load_runs(client, experiment_id: str, profile: str | None) -> list[RunRecord]:
-    """Finished pipeline parent runs, newest first (comparison runs and stage child runs left out)."""
-    from mlflow.entities import ViewType
-
-    runs, token = [], None
-    while True:
-        page = client.search_runs([experiment_id], filter_string="attributes.status = 'FINISHED'",
-                                  run_view_type=ViewType.ACTIVE_ONLY, max_results=1000,
-                                  order_by=["attributes.start_time DESC"], page_token=token)
-        for r in page:
-            tags = r.data.tags
-            if PARENT_TAG in tags or tags.get(COMPARISON_TAG) == COMPARISON_KIND:
-                continue
-            if profile is not None and tags.get("profile") != profile:
-                continue
-            runs.append(RunRecord(r.info.run_id, r.info.run_name or "", r.info.start_time, dict(r.data.params),
-                                  dict(r.data.metrics), dict(tags)))
-        token = page.token
-        if not token:
-            return runs
-
-
-def pick(runs: list[RunRecord], row: Row, needed: str, experiment: str | None = None) -> RunRecord | None:
+def pick(runs: list[RunRecord], row: Row, needed: str, matcher: RowMatcher,
+         experiment: str | None = None) -> RunRecord | None:
     """The newest run of ``row``'s configuration that has the metric ``needed``; with ``experiment``, a run
-    of that sweep first (its rows share one training budget, DESIGN §8), else any run of the row."""
-    found = [run for run in runs if needed in run.metrics and matches(row, run.params)]  # newest first
-    own = [run for run in found if _value(run.params.get("experiment_name")) == experiment]
+    of that sweep first (its rows share one training budget), else any run of the row."""
+    found = [run for run in runs if needed in run.metrics and matcher.matches(row, run)]  # newest first
+    own = [run for run in found if run.param("experiment_name") == experiment]
     return (own or found or [None])[0]
 
 
-def _fmt(value) -> str:
-    if value is None:
+def provenance(run: RunRecord | None) -> str:
+    """A run's name, commit and date, as a table cell."""
+    if run is None:
         return NOT_AVAILABLE
-    if isinstance(value, float):
-        return f"{value:.2f}"
-    return str(value)
+    date = datetime.fromtimestamp(run.start_time / 1000, UTC).strftime("%Y-%m-%d")
+    return f"{run.name} ({run.tags.get('git_commit', '?')[:7]}, {date})"
 
 
-@dataclass
-class Table:
-    title: str
-    header: list[str]
-    rows: list[list]          # cells: str, float or None (shown as n/a)
-    notes: list[str]
-
-    def markdown(self) -> str:
-        lines = [f"## {self.title}", "", "| " + " | ".join(self.header) + " |",
-                 "|" + "|".join("---" for _ in self.header) + "|"]
-        lines += ["| " + " | ".join(_fmt(c) for c in row) + " |" for row in self.rows]
-        return "\n".join(lines + [""] + [f"- {n}" for n in self.notes] + [""])
-
-    def write_csv(self, path: Path) -> None:
-        with path.open("w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(self.header)
-            writer.writerows([["" if c is None else c for c in row] for row in self.rows])
-
-
-def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], experiment: str) -> tuple[Table, dict]:
+def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], experiment: str,
+                   matcher: RowMatcher) -> tuple[Table, dict]:
     header = ["Row", "params", "ms/img b1 (ours)", "ms/img b1 (paper)", "wheel_acc mixed (ours)",
-              "image_acc mixed (ours)", "accuracy (paper)", "run"]
+              "image_acc mixed (ours)", "accuracy (paper)", "run (commit, date)"]
     out, used = [], {}
     for row in rows:
-        run = pick(runs, row, ACC_METRIC, experiment)
+        run = pick(runs, row, ACC_METRIC, matcher, experiment)
         m = run.metrics if run else {}
         params = m.get(PARAMS_METRIC)
         out.append([row.label, None if params is None else int(params), m.get(LATENCY_METRIC), None,
-                    m.get(ACC_METRIC), m.get(IMAGE_ACC_METRIC), None, run.name if run else NOT_AVAILABLE])
+                    m.get(ACC_METRIC), m.get(IMAGE_ACC_METRIC), None, provenance(run)])
         used[row.label] = run.run_id if run else None
-    notes = ["Ours: ground-truth boxes, mixed test subset (DESIGN §7); latency: onnxruntime, batch 1, "
+    notes = ["Ours: ground-truth boxes, mixed test subset (docs/design.md §7); latency: onnxruntime, batch 1, "
              "this machine.",
              "Paper column n/a: the paper's figures for this table are not transcribed here (unverified).",
              "A row shows n/a when no finished run of its configuration with evaluation metrics is in "
@@ -185,9 +80,9 @@ def backbone_table(title: str, rows: tuple[Row, ...], runs: list[RunRecord], exp
     return Table(title, header, out, notes), used
 
 
-def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
-    needed = "eval.gt.logic.mixed.wheel_acc"
-    run = pick(runs, TABLE3_ROW, needed, "table3")
+def table3(runs: list[RunRecord], matcher: RowMatcher) -> tuple[Table, dict]:
+    needed = metric_name("gt", "logic", "mixed", "wheel_acc")
+    run = pick(runs, TABLE3_ROW, needed, matcher, "table3")
     m = run.metrics if run else {}
     header = ["Method"]
     for s in SUBSETS:
@@ -196,15 +91,42 @@ def table3(runs: list[RunRecord]) -> tuple[Table, dict]:
     for method, label in TABLE3_METHODS.items():
         cells = [label]
         for s in SUBSETS:
-            cells += [m.get(f"eval.gt.{method}.{s}.wheel_acc"), m.get(f"eval.gt.{method}.{s}.image_acc"),
-                      PAPER_TABLE3.get(method, {}).get(s)]
+            cells += [m.get(metric_name("gt", method, s, "wheel_acc")), m.get(metric_name("gt", method, s, "image_acc")),
+                      paper.TABLE3_ACCURACY.get(method, {}).get(s)]
         if any(c is not None for c in cells[1:]):
             rows.append(cells)
-    notes = [f"Ours: run {run.name!r} ({run.run_id}), ground-truth boxes." if run else
+    notes = [f"Ours: run {provenance(run)}, id {run.run_id}, ground-truth boxes." if run else
              "No finished run with evaluation metrics: run `make ablations` (or `make pipeline`).",
              "The paper does not say whether its accuracy is per wheel or per image: both are shown."]
     return Table("Table 3: logic model vs DeepWORD on easy / hard / mixed", header, rows, notes), \
         {"table3": run.run_id if run else None}
+
+
+BEV_METHODS = {"box_bottom": "box bottom (no relation)", "logic": "Logic model", "logic_plus": "Logic+ (ours)",
+               "deepword": "DeepWORD"}
+BEV_METRICS = ("center_err_m", "heading_err_deg", "bev_iou", "recall")
+BEV_POPULATIONS = {"paired.": "two same-side wheels", "": "all"}
+
+
+def bev_table(runs: list[RunRecord]) -> tuple[Table, dict]:
+    """Footprints in bird's-eye view (docs/bev.md) of the newest run with bev metrics: per box source and
+    method, medians over the vehicles within range that show two same-side wheels (the targets' population)
+    and over all vehicles within range."""
+    needed = "bev.gt.deepword.paired.center_err_m"
+    run = next((r for r in runs if needed in r.metrics), None)  # runs: newest first
+    m = run.metrics if run else {}
+    header = ["Boxes", "Method"] + [f"{k} ({label})" for label in BEV_POPULATIONS.values() for k in BEV_METRICS]
+    rows = []
+    for boxes in ("gt", "detected"):
+        for method, label in BEV_METHODS.items():
+            cells = [m.get(f"bev.{boxes}.{method}.{pop}{k}") for pop in BEV_POPULATIONS for k in BEV_METRICS]
+            if any(c is not None for c in cells):
+                rows.append([boxes, label, *cells])
+    notes = [f"Run {run.name!r} ({run.run_id}); vehicles within the run's bev.max_range_m of the ego's rear axle; "
+             "errors in m and degrees (heading modulo 180), recall in %." if run else
+             "No finished run with bev metrics: run `make pipeline` on a dataset with calibration."]
+    return Table("Bird's-eye view: footprints from wheel contacts", header, rows, notes), \
+        {"bev": run.run_id if run else None}
 
 
 DATASETS_EXPERIMENT = "datasets"
@@ -218,35 +140,24 @@ def _datasets_column(subset: str, metric: str, method: str) -> str:
     return f"{subset} {metric} {DATASETS_METHODS[method]}"
 
 
-def paired_difference(diffs: list[float]) -> str:
-    """Mean of per-dataset differences with its standard error (sample sd / sqrt(n)), e.g. "-0.02 ± 0.18";
-    the mean alone for one dataset."""
-    if not diffs:
-        return NOT_AVAILABLE
-    mean = statistics.fmean(diffs)
-    if len(diffs) == 1:
-        return f"{mean:+.2f}"
-    return f"{mean:+.2f} ± {statistics.stdev(diffs) / len(diffs) ** 0.5:.2f}"
-
-
 def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT) -> tuple[Table, dict]:
     """One row per dataset (root seed) of the ``datasets`` sweep (``experiment``: its ``experiment_name``, so a
     variant swept under a name of its own is tabulated on its own), the newest evaluated run of each: DeepWORD
     and ``logic_plus`` on hard and mixed (ground-truth boxes), then their mean over the datasets, on how
     many datasets DeepWORD is ahead / level / behind, and the mean paired difference with its standard error
     (whether a difference is larger than the spread from one dataset to the next)."""
-    needed = "eval.gt.deepword.hard.wheel_acc"
+    needed = metric_name("gt", "deepword", "hard", "wheel_acc")
     newest: dict[int, RunRecord] = {}
     for run in runs:  # newest first
-        if _value(run.params.get("experiment_name")) == experiment and needed in run.metrics:
-            newest.setdefault(int(_value(run.params.get("seed"))), run)
+        if run.param("experiment_name") == experiment and needed in run.metrics:
+            newest.setdefault(int(run.param("seed")), run)
     keys = [(s, m, method) for s in DATASETS_SUBSETS for m in DATASETS_METRICS for method in DATASETS_METHODS]
-    header = ["Dataset (seed)"] + [_datasets_column(*k) for k in keys] + ["run"]
+    header = ["Dataset (seed)"] + [_datasets_column(*k) for k in keys] + ["run (commit, date)"]
     rows, used = [], {}
     for seed in sorted(newest):
         run = newest[seed]
-        rows.append([str(seed)] + [run.metrics.get(f"eval.gt.{method}.{s}.{m}") for s, m, method in keys]
-                    + [run.name])
+        rows.append([str(seed)] + [run.metrics.get(metric_name("gt", method, s, m)) for s, m, method in keys]
+                    + [provenance(run)])
         used[f"datasets.{seed}"] = run.run_id
     if rows:
         columns = list(zip(*[row[1:-1] for row in rows], strict=True))
@@ -268,16 +179,6 @@ def datasets_table(runs: list[RunRecord], experiment: str = DATASETS_EXPERIMENT)
              f"Newest run per seed with experiment_name={experiment}; seeds {sorted(newest)}."]
     title = "DeepWORD vs logic_plus over datasets" + ("" if experiment == DATASETS_EXPERIMENT else f" ({experiment})")
     return Table(title, header, rows, notes), used
-
-
-def save_figure(fig, path: Path) -> None:
-    """Lay out, write as PNG (creating the folder) and close a matplotlib figure."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def datasets_chart(table: Table, path: Path) -> None:
@@ -343,7 +244,7 @@ def bar_chart(tables: list[Table], path: Path) -> None:
         row = t3.get(TABLE3_METHODS[method])
         values = [np.nan] * len(SUBSETS)
         if who == "paper":
-            values = [PAPER_TABLE3[method][s] for s in SUBSETS]
+            values = [paper.TABLE3_ACCURACY[method][s] for s in SUBSETS]
         elif row is not None:
             values = [np.nan if row[1 + 3 * j] is None else row[1 + 3 * j] for j in range(len(SUBSETS))]
         ax.bar(x + (i - (len(bars) - 1) / 2) * width, values, width,
@@ -356,20 +257,23 @@ def bar_chart(tables: list[Table], path: Path) -> None:
 
 
 def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True,
-            datasets_experiment: str = DATASETS_EXPERIMENT) -> dict:
-    """Build the tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them; the datasets
-    table from the runs whose experiment_name is ``datasets_experiment``."""
+            datasets_experiment: str = DATASETS_EXPERIMENT, results: Path | None = None) -> dict:
+    """Build the tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them, and (with
+    ``results``) write them into that Markdown page; the datasets table from the runs whose experiment_name is
+    ``datasets_experiment``."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=uri)
     found = client.get_experiment_by_name(experiment)
     if found is None:
         raise SystemExit(f"error: no MLflow experiment {experiment!r} in {uri}; run the pipeline first")
-    runs = load_runs(client, found.experiment_id, profile)
-    t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs, "table1")
-    t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2")
-    t3, used3 = table3(runs)
+    runs = load_runs(client, found.experiment_id, profile, exclude_tags={COMPARISON_TAG: COMPARISON_KIND})
+    matcher = RowMatcher()
+    t1, used1 = backbone_table("Table 1: relation backbones", TABLE1, runs, "table1", matcher)
+    t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2", matcher)
+    t3, used3 = table3(runs, matcher)
     td, used_datasets = datasets_table(runs, datasets_experiment)
+    tb, used_bev = bev_table(runs)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
@@ -378,7 +282,9 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in [*tables, td]))
+        + "\n".join(t.markdown() for t in [*tables, td, tb]))
+    (out_dir / "bev.md").write_text(tb.markdown())
+    tb.write_csv(out_dir / "bev.csv")
     bar_chart(tables, out_dir / "comparison.png")
     (out_dir / "datasets.md").write_text(td.markdown())
     td.write_csv(out_dir / "datasets.csv")
@@ -387,8 +293,10 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     else:  # no stale chart beside a table that has no rows
         (out_dir / "datasets.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
-               | used_datasets)
+               | used_datasets | used_bev)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
+    if results is not None:
+        write_results_page(results, [*tables, td], out_dir, scope)
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",
                                 tags={COMPARISON_TAG: COMPARISON_KIND, "profile": profile or "all"})
@@ -399,6 +307,40 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     return result
 
 
+def _head_commit() -> str:
+    """The working tree's commit (short), or "unknown" outside a git checkout."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
+                             cwd=Path(__file__).parent)
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def write_results_page(page: Path, tables: list[Table], out_dir: Path, scope: str) -> None:
+    """Replace the measured section of ``page`` (between RESULTS_BEGIN and RESULTS_END; appended when
+    absent) with the tables and charts, copied next to it into ``<page stem>/``."""
+    charts = page.parent / page.stem
+    charts.mkdir(parents=True, exist_ok=True)
+    images = [name for name in ("comparison.png", "datasets.png") if (out_dir / name).is_file()]
+    for name in images:
+        shutil.copyfile(out_dir / name, charts / name)
+    today = datetime.now(UTC).strftime("%Y-%m-%d")
+    section = [RESULTS_BEGIN, "", f"Written by `make compare` on {today} at commit `{_head_commit()}` from the runs "
+               f"in MLflow ({scope}); every row names the run, commit and date it comes from.", ""]
+    section += [t.markdown(level=3) for t in tables]
+    section += [f"![{name}]({charts.name}/{name})" for name in images]
+    section += ["", RESULTS_END]
+    text = page.read_text() if page.is_file() else "# Results\n\n"
+    if RESULTS_BEGIN in text and RESULTS_END in text:
+        before, rest = text.split(RESULTS_BEGIN, 1)
+        after = rest.split(RESULTS_END, 1)[1]
+        text = before + "\n".join(section) + after
+    else:
+        text = text.rstrip("\n") + "\n\n" + "\n".join(section) + "\n"
+    page.write_text(text)
+
+
 def _param(key: str, value):
     from mlflow.entities import Param
 
@@ -406,21 +348,20 @@ def _param(key: str, value):
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.compare", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m stages.tables", description=__doc__.split("\n")[0])
     parser.add_argument("--tracking-uri", default=os.environ.get("MLFLOW_TRACKING_URI", "sqlite:///mlflow.db"))
     parser.add_argument("--experiment", default="deepword")
     parser.add_argument("--profile", default=None, help="only runs of this profile (default: all)")
     parser.add_argument("--out", type=Path, default=Path("outputs/comparison"))
+    parser.add_argument("--results", type=Path, default=None, metavar="PAGE",
+                        help="also write the tables and charts into this Markdown page (make compare: docs/results.md)")
     parser.add_argument("--no-log", action="store_true", help="do not log a comparison run to MLflow")
     parser.add_argument("--datasets", default=DATASETS_EXPERIMENT, metavar="NAME",
                         help="the datasets table from the runs with experiment_name=NAME (default: %(default)s)")
     args = parser.parse_args(argv)
     result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log,
-                     datasets_experiment=args.datasets)
+                     datasets_experiment=args.datasets, results=args.results)
     print((args.out / "comparison.md").read_text())
     print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, comparison.md, comparison.png"
+          + (f", {args.results}" if args.results else "")
           + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)
-
-
-if __name__ == "__main__":
-    main()

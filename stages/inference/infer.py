@@ -6,8 +6,12 @@ exported models in onnxruntime (torch is never imported on this path).
     deepword infer --dataset ROOT --out DIR --detect    on detected boxes (end to end)
 
 Options: ``--method deepword|deepword_int8|logic|logic_plus|prior`` (the baselines use the thresholds the
-pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--run RUN_ID`` picks the pipeline
-run whose artifacts to use (default: the newest finished one; see ``stages.export.resolve``), or
+pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
+JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
+``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
+a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
+DIR``; docs/bev.md). ``--run RUN_ID`` picks the pipeline
+run whose artifacts to use (default: the newest finished one; see ``stages.inference.resolve``), or
 ``--export DIR`` [``--evaluate DIR``] name the stage output directories directly.
 
 Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
@@ -27,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.export.runtime import METHOD_VARIANTS
+from stages.inference.runtime import METHOD_VARIANTS
 from stages.word_format import CAMERAS, DatasetError, Record, write_records
 
 BASELINES = ("logic", "logic_plus", "prior")
@@ -69,7 +73,7 @@ def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], d
 
 def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     """The export (and, for a baseline, evaluate) stage directories to use."""
-    from stages.export.resolve import stage_dirs
+    from stages.inference.resolve import stage_dirs
 
     if args.export is not None:
         dirs = {"export": args.export}
@@ -84,12 +88,12 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
     if name in METHOD_VARIANTS:
-        from stages.export.runtime import deepword_method
+        from stages.inference.runtime import deepword_method
 
         return deepword_method(name, dirs["export"], root, threads, load_rgb)
     from stages.evaluate.baselines import baseline_from_params
     from stages.evaluate.stage import BASELINES_FILE
-    from stages.export.runtime import PRIORS_FILE
+    from stages.inference.runtime import PRIORS_FILE
     from stages.priors.mixture import load_priors
 
     if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
@@ -101,15 +105,60 @@ def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, loa
     return baseline_from_params(name, params[name], load_priors(dirs["export"] / PRIORS_FILE))
 
 
-def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record) -> Path:
+def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Path:
+    """The Fig. 5-style overlay; ``bev`` = (camera, estimates, contacts) adds the top view beside it."""
     import cv2
 
     from stages.overlay import draw_relations
 
     path = out_dir / OVERLAY_DIR / (Path(pred.image).with_suffix("").as_posix().replace("/", "__") + ".png")
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(draw_relations(rgb, pred), cv2.COLOR_RGB2BGR))
+    image = draw_relations(rgb, pred)
+    if bev is not None:
+        from stages.bev.apply import beside_top_view
+
+        image = beside_top_view(image, *bev)
+    cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return path
+
+
+def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
+    """Footprints for every prediction with a camera (``--calibration`` or the record's own); returns the
+    predictions and {image: (camera, estimates, contacts)} for the overlays."""
+    from stages.bev.apply import CalibrationError, camera_of, footprints, load_prior, read_calibration_file
+
+    calibration = None
+    if args.calibration is not None:
+        sizes = {(p.width, p.height) for p in preds}
+        try:
+            calibration = read_calibration_file(args.calibration, *min(sizes)) if sizes else None
+        except CalibrationError as exc:
+            raise InferError(str(exc)) from None
+        if len(sizes) > 1:
+            raise InferError(f"{args.calibration}: one calibration for images of {len(sizes)} different sizes")
+    if calibration is None and not any("calibration" in p.extra for p in preds):
+        return preds, {}
+    bev_dir = args.bev if args.bev is not None else dirs.get("bev")
+    if bev_dir is None:
+        why = "footprints need the footprint prior of a bev stage: pass --bev DIR or a --run whose bev stage finished"
+        if args.calibration is not None:
+            raise InferError(why)
+        print(f"note: no bird's-eye-view footprints ({why})", file=sys.stderr)
+        return preds, {}
+    try:
+        prior = load_prior(bev_dir)
+    except CalibrationError as exc:
+        raise InferError(str(exc)) from None
+    out, views = [], {}
+    for pred in preds:
+        cam = camera_of(pred, calibration)
+        if cam is None:
+            out.append(pred)
+            continue
+        pred, estimates, contacts = footprints(pred, cam, prior)
+        out.append(pred)
+        views[pred.image] = (cam, estimates, contacts)
+    return out, views
 
 
 def infer(args) -> list[Record]:
@@ -138,16 +187,17 @@ def infer(args) -> list[Record]:
         return pixels[rec.image]
 
     if detect:
-        from stages.export.runtime import OnnxDetector
+        from stages.inference.runtime import OnnxDetector
 
         detector = OnnxDetector(dirs["export"], args.threads)
         records = [detector.detect(rgb_of(r), r) for r in records]
     method = build_method(args.method, dirs, root, args.threads, rgb_of)
     preds = [method.predict(r) for r in records]
+    preds, views = add_footprints(args, dirs, preds)
     args.out.mkdir(parents=True, exist_ok=True)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
-        write_overlay(args.out, rgb_of(pred), pred)
+        write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))
     return preds
 
 
@@ -167,6 +217,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", choices=CAMERAS, default="front", help="camera name written for loose images")
     p.add_argument("--overlays", type=int, default=0, help="with --dataset: overlays for the first N images")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    p.add_argument("--calibration", type=Path, help="WoodScape-style calibration JSON of the loose images' camera "
+                   "(footprints in bird's-eye view; a dataset's own `calibration` needs no flag)")
+    p.add_argument("--bev", type=Path, help="a bev stage output directory (its footprint prior; default: the run's)")
     return p
 
 
@@ -177,8 +230,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give either IMAGE... or --dataset ROOT")
     if args.detect and args.dataset is None:
         p.error("--detect goes with --dataset (loose images are always detected)")
-    from stages.export.resolve import ResolveError
-    from stages.export.runtime import NoDetectorError
+    from stages.inference.resolve import ResolveError
+    from stages.inference.runtime import NoDetectorError
 
     try:
         preds = infer(args)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stages.evaluate.metrics import Counts, match_boxes, score_image, score_records
+from stages.metrics import Counts, match_boxes, score_image, score_records
 from stages.word_format import Record
 
 
@@ -108,3 +108,69 @@ def test_score_records_sums_and_missing_images_have_no_relations():
     other = rec(GT.boxes.tolist(), GT.relations, GT.wheel_pairs, image="b.png")
     total = score_records([GT, other], {"a.png": with_relations([(0, 1), (0, 2)], [(1, 2)])})
     assert (total.images, total.images_correct, total.wheels, total.wheels_correct) == (2, 1, 6, 4)
+
+
+def random_image(rng: np.random.Generator, image: str) -> tuple[Record, Record]:
+    """Ground truth and a one-owner prediction on its boxes: vehicles, wheels of 4-20 px (some under the
+    8 px evaluation floor), random owners and couples on both sides."""
+    n_v, n_w = int(rng.integers(0, 4)), int(rng.integers(0, 7))
+    boxes = [[x, 10, x + 60, 60, 1, 0, i] for i, x in enumerate(rng.uniform(0, 130, n_v))]
+    for k in range(n_w):
+        size = float(rng.uniform(4, 20))
+        x = float(rng.uniform(0, 180))
+        boxes.append([x, 40, x + size, 40 + size, 1, 1, n_v + k])
+    wheels = list(range(n_v, n_v + n_w))
+
+    def draw() -> tuple[list, list]:
+        relations = [(int(rng.integers(n_v)), w, None) for w in wheels if n_v and rng.random() < 0.7]
+        order = list(rng.permutation(wheels)) if wheels else []
+        couples = [(int(order[i]), int(order[i + 1])) for i in range(0, len(order) - 1, 2) if rng.random() < 0.5]
+        return relations, couples
+
+    gt_rel, gt_pairs = draw()
+    pred_rel, pred_pairs = draw()
+    return rec(boxes, gt_rel, gt_pairs, image), rec(boxes, pred_rel, pred_pairs, image)
+
+
+def test_validation_baseline_fitting_and_evaluation_count_alike():
+    """The three users of the §7 metrics give the same counts for the same decisions: evaluation on records,
+    the baselines on owner indices, relation validation on decoded matrices over the evaluated wheels."""
+    import torch
+
+    from stages.evaluate.baselines import prepare_train, train_counts
+    from stages.metrics import evaluated_mask
+    from stages.relation.decode import relation_counts
+    from stages.relation.inputs import relation_targets
+
+    rng = np.random.default_rng(7)
+    for i in range(200):
+        gt, pred = random_image(rng, f"{i}.png")
+        by_record = score_image(gt, pred, min_box_px=8)
+
+        (train,) = prepare_train([gt], min_box_px=8, max_images=1, seed=0)
+        v_index = {int(gt.box_ids[k]): j for j, k in enumerate(train.obj.vehicles)}
+        owner_of = {w: v for v, w, _ in pred.relations}
+        owners = np.array([v_index.get(owner_of.get(int(gt.box_ids[k]), -1), -1) for k in train.obj.wheels])
+        w_index = {int(gt.box_ids[k]): j for j, k in enumerate(train.obj.wheels)}
+        by_indices = train_counts(train, owners, [(w_index[a], w_index[b]) for a, b in pred.wheel_pairs])
+
+        owner_t, couple_t, _ = relation_targets(gt)
+        n = len(gt.boxes)
+        pred_owner = np.zeros((n, n), dtype=bool)
+        pred_couple = np.zeros((n, n), dtype=bool)
+        for v, w, _ in pred.relations:
+            pred_owner[w, v] = True  # box ids are row indices here
+        for a, b in pred.wheel_pairs:
+            pred_couple[a, b] = pred_couple[b, a] = True
+        by_matrices = relation_counts(*(torch.from_numpy(a)[None] for a in (
+            pred_owner, owner_t, pred_couple, couple_t, gt.class_ids.astype(np.int64),
+            evaluated_mask(gt.xyxy, gt.class_ids, 8))))
+        assert Counts(**{k: int(v) for k, v in by_matrices.items()}) == by_record == by_indices, gt.image
+
+
+def test_no_couples_anywhere_is_a_perfect_couple_f1_for_every_user():
+    from stages.evaluate.baselines import couple_f1, prepare_train
+
+    gt = rec(GT.boxes.tolist(), [(0, 1), (0, 2)])
+    assert score_image(gt, with_relations([(0, 1), (0, 2)])).percentages()["couple_f1"] == 100.0
+    assert couple_f1(prepare_train([gt], 0.0, 1, 0), [[]]) == 100.0

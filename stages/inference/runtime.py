@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.export.decode import decode_couples, decode_owners
+from stages.inference.decode import decode_couples, decode_owners
 from stages.word_format import Record
 
 BUNDLE_FILE = "export.json"
@@ -155,6 +155,15 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
 # --- detector ---------------------------------------------------------------------------------------
 
+def keep_at(record: Record, thresholds: Sequence[float]) -> Record:
+    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``);
+    box ids are kept, so kept boxes still name the detections they came from."""
+    from dataclasses import replace
+
+    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[record.class_ids.astype(int)]
+    return replace(record, boxes=record.boxes[keep].copy(), relations=[], wheel_pairs=[])
+
+
 class NoDetectorError(LookupError):
     """The bundle was exported without a detector (its run had ``pipeline.skip=[detector]``)."""
 
@@ -171,7 +180,7 @@ class OnnxDetector:
                                   "pipeline.skip=[detector]); use a run that trained one")
         self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
         self.score_threshold = float(cfg["score_threshold"])
-        # Per-class thresholds chosen on val (stages.export.operating_point); a bundle from before they existed,
+        # Per-class thresholds chosen on val (stages/export/operating_point.py); a bundle from before they existed,
         # or at_operating_point=False (AP, the threshold search itself), keeps everything above score_threshold.
         operating_point = cfg.get("operating_point") if at_operating_point else None
         self.class_thresholds = None if not operating_point else tuple(
@@ -189,8 +198,6 @@ class OnnxDetector:
         record = detections_to_record(detections[0], source, box, self.score_threshold)
         if self.class_thresholds is None:
             return record
-        from stages.export.operating_point import keep_at
-
         kept = keep_at(record, self.class_thresholds)
         # ids 0..N-1 again, as every detection record has them
         kept.boxes[:, 6] = np.arange(len(kept.boxes))

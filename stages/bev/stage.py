@@ -1,0 +1,224 @@
+"""The ``bev`` stage: vehicle footprints in bird's-eye view from wheel contacts, per relation method, on the
+box sources the evaluate stage scored, fused over each frame's cameras and scored against ``objects_3d``.
+
+It reads the relations evaluate predicted (``predictions/<boxes>_<method>.jsonl``: the shipped ONNX models
+and the fitted baselines, exactly as evaluate scores them) and adds ``box_bottom`` (no relation). Needs
+``calibration`` and ``objects_3d`` in the dataset (docs/design.md §4): a dataset without any is reported as such
+(no metrics); a dataset where some records lack them is an error naming the first one's file and line.
+
+Outputs: ``bev.json`` (every number), ``bev_report.md``, ``footprint_prior.json`` (the shape prior fitted on
+train), ``footprints/<boxes>_<method>.jsonl`` (fused footprints per frame) and ``artifacts/top_view_*.png``.
+MLflow keys: ``bev.<boxes>.<method>.<metric>`` (matched vehicles within ``bev.max_range_m``),
+``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
+visible) and ``hard`` (in a hard test image) within the range, and ``<lo>_<hi>m`` distance bins.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import shutil
+from collections import defaultdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stages.bev.figure import top_view
+from stages.bev.footprint import FootprintPrior, estimate_record, fit_prior, fuse_frame, wheel_contacts
+from stages.bev.metrics import METRICS, TrueVehicle, match_frame, summarise
+from stages.evaluate.stage import predictions_file
+from stages.format_3d import Missing3DError, record_camera, record_objects_3d
+from stages.word_format import WHEEL, Dataset, Record, open_dataset, read_records
+
+NEEDED_BY = "the bev stage"
+BASELINE = "box_bottom"
+PRIOR_FILE = "footprint_prior.json"
+
+
+def _has_3d(rec: Record) -> bool:
+    return "calibration" in rec.extra and "objects_3d" in rec.extra
+
+
+def check_3d(records: list[Record]) -> bool:
+    """True when every record has calibration and objects_3d, False when none has; a mix is an error
+    naming the first record without them."""
+    have = [_has_3d(r) for r in records]
+    if not any(have):
+        return False
+    for rec, ok in zip(records, have, strict=True):
+        if not ok:
+            record_camera(rec, NEEDED_BY)
+            record_objects_3d(rec, NEEDED_BY)
+    return True
+
+
+def train_prior(ds: Dataset, fit_images: int, seed: int) -> FootprintPrior:
+    train = ds.subset("train")
+    if len(train) > fit_images:
+        train = random.Random(seed).sample(train, fit_images)
+    return fit_prior((rec, record_camera(rec, NEEDED_BY), *record_objects_3d(rec, NEEDED_BY)) for rec in train)
+
+
+def frame_truth(test: list[Record], hard: set[str]) -> dict[int, list[TrueVehicle]]:
+    """True vehicles per frame, one per physical vehicle (the same 3D box seen by several cameras)."""
+    frames: dict[int, dict[tuple, TrueVehicle]] = defaultdict(dict)
+    for rec in test:
+        vehicles, _ = record_objects_3d(rec, NEEDED_BY)
+        owner = rec.owner_of()
+        paired = {owner[a] for a, b in rec.wheel_pairs if a in owner and owner.get(b) == owner[a]}
+        for vid, box in vehicles.items():
+            key = (round(box.x, 2), round(box.y, 2))
+            tv = frames[rec.frame_id].setdefault(key, TrueVehicle(box))
+            tv.paired |= vid in paired
+            tv.hard |= rec.image in hard
+    return {f: list(v.values()) for f, v in frames.items()}
+
+
+def populations(bcfg) -> dict[str, callable]:
+    """Name -> predicate on a TrueVehicle; '' is every vehicle within the range (the headline keys)."""
+    rng = float(bcfg.max_range_m)
+    pops = {"": lambda t: t.range_m <= rng, "paired": lambda t: t.range_m <= rng and t.paired,
+            "hard": lambda t: t.range_m <= rng and t.hard}
+    for lo, hi in bcfg.range_bins:
+        pops[f"{lo:g}_{hi:g}m"] = lambda t, lo=float(lo), hi=float(hi): lo <= t.range_m < hi
+    return pops
+
+
+def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict, prior: FootprintPrior,
+                    use_relations: bool, fuse_radius: float) -> dict[int, list]:
+    """Fused footprints per frame for one method on one box source."""
+    per_frame = defaultdict(list)
+    for rec in test:
+        pred = preds.get(rec.image)
+        if pred is not None:
+            per_frame[rec.frame_id] += estimate_record(pred, cameras[rec.image], prior, use_relations)
+    return {f: fuse_frame(per_frame.get(f, []), fuse_radius) for f in {r.frame_id for r in test}}
+
+
+def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
+    bcfg, seed = cfg.bev, int(cfg.seed)
+    out_dir = Path(out_dir)
+    artifacts = out_dir / "artifacts"
+    artifacts.mkdir(parents=True, exist_ok=True)
+    ds = open_dataset(inputs["data"])
+    test = ds.subset("test")
+    if not check_3d(ds.records):
+        first = ds.records[0]
+        file, line = first.source or (first.image, None)
+        note = (f"no BEV results: the dataset has no `calibration` / `objects_3d` keys (e.g. {file}:{line}); "
+                "the bev stage needs both (docs/design.md §4, docs/bev.md)")
+        print(f"bev: {note}")
+        (out_dir / "bev_report.md").write_text(f"# Bird's-eye view\n\n{note}\n")
+        shutil.copy(out_dir / "bev_report.md", artifacts / "bev_report.md")
+        return {}
+    prior = train_prior(ds, int(bcfg.fit_images), seed)
+    (out_dir / PRIOR_FILE).write_text(json.dumps(prior.to_json(), indent=1))
+    cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
+    truth = frame_truth(test, set(ds.splits.get("hard", [])))
+    pops = populations(bcfg)
+    pred_dir = Path(inputs["evaluate"]) / "predictions"
+    results, notes, fused_by = {}, [], {}
+    (out_dir / "footprints").mkdir(exist_ok=True)
+    for boxes in bcfg.box_sources:
+        methods = [m for m in bcfg.methods if predictions_file(pred_dir, boxes, m).is_file()]
+        for m in bcfg.methods:
+            if m not in methods:
+                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {predictions_file(pred_dir, boxes, m).name}")
+        if not methods:
+            continue
+        results[boxes] = {}
+        for method in [BASELINE, *methods]:
+            source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
+            preds = {r.image: r for r in read_records(predictions_file(pred_dir, boxes, source), root=ds.root,
+                                                      allow_empty=True)}
+            fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
+            fused_by[(boxes, method)] = fused
+            matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
+            results[boxes][method] = {
+                pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
+            write_footprints(out_dir / "footprints" / f"{boxes}_{method}.jsonl", fused)
+    report = {"results": results, "notes": notes, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
+              "match_m": float(bcfg.match_m), "frames": len(truth)}
+    (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
+    (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
+    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg)
+    for name in ("bev_report.md", "bev.json", PRIOR_FILE):
+        shutil.copy(out_dir / name, artifacts / name)
+    print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
+    return flatten(results)
+
+
+def flatten(results: dict) -> dict[str, float]:
+    out = {}
+    for boxes, by_method in results.items():
+        for method, by_pop in by_method.items():
+            for pop, vals in by_pop.items():
+                prefix = f"bev.{boxes}.{method}." + (f"{pop}." if pop else "")
+                out.update({prefix + k: float(vals[k]) for k in METRICS if not math.isnan(vals[k])})
+    return out
+
+
+def write_footprints(path: Path, fused: dict[int, list]) -> None:
+    with open(path, "w") as fh:
+        for frame in sorted(fused):
+            fh.write(json.dumps({"frame_id": frame, "footprints": [
+                {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group})}
+                for box, group in fused[frame]]}) + "\n")
+
+
+def render_report(report: dict, bcfg) -> str:
+    lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", "",
+             f"Matched by BEV centre distance <= {report['match_m']:g} m; medians over matched vehicles; recall in %. "
+             f"Rows `all`, `paired` (two same-side wheels visible) and `hard` count vehicles within "
+             f"{report['max_range_m']:g} m of the vehicle frame's origin (under the ego's rear axle); the other rows "
+             f"are distance bins. Headings modulo 180 deg. {report['frames']} test frames.", ""]
+    for boxes, by_method in report["results"].items():
+        lines += [f"## {boxes} boxes", "", "| method | vehicles | " + " | ".join(METRICS) + " |",
+                  "|---|---|" + "---:|" * len(METRICS)]
+        pops = list(next(iter(by_method.values())))
+        for pop in pops:
+            for method, by_pop in by_method.items():
+                v = by_pop[pop]
+                cells = " | ".join("-" if math.isnan(v[k]) else f"{v[k]:.3g}" for k in METRICS)
+                lines.append(f"| {method} ({pop or 'all'}) | {int(v['vehicles'])} | {cells} |")
+        lines.append("")
+    p = report["prior"]
+    lines += ["Footprint prior fitted on the train split's 3D truth: " + ", ".join(f"{k}={v:g}" for k, v in p.items()), ""]
+    lines += [f"- {n}" for n in report["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dict, fused_by: dict,
+                  prior: FootprintPrior, bcfg) -> list[Path]:
+    """One figure per sample frame (the frames with the most vehicles in range, evenly spread): a top view
+    per method on ground-truth boxes, and DeepWORD on detected boxes when there are."""
+    by_frame = defaultdict(list)
+    for rec in test:
+        by_frame[rec.frame_id].append(rec)
+    ranked = sorted(truth, key=lambda f: (-sum(t.range_m <= float(bcfg.max_range_m) for t in truth[f]), f))
+    picks = ranked[:: max(1, len(ranked) // max(1, int(bcfg.figures)))][: int(bcfg.figures)]
+    panels_of = [k for k in fused_by if k[0] == "gt"] + [k for k in fused_by if k[0] == "detected" and k[1] == "deepword"]
+    paths = []
+    for f in sorted(picks):
+        recs = by_frame[f]
+        rig = np.array([cameras[r.image].translation[:2] for r in recs])
+        contacts = []
+        for r in recs:
+            wheels = r.boxes[r.class_ids == WHEEL]
+            if len(wheels):
+                xy, ok = wheel_contacts(cameras[r.image], wheels[:, :4], prior)
+                contacts.append(xy[ok])
+        contacts = np.concatenate(contacts) if contacts else np.zeros((0, 2))
+        panels = [top_view([t.box for t in truth[f]], [b for b, _ in fused_by[k][f]], contacts, rig,
+                           f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m)) for k in panels_of]
+        if not panels:
+            continue
+        path = artifacts / f"top_view_{f:06d}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(panels, axis=1), cv2.COLOR_RGB2BGR))
+        paths.append(path)
+    return paths
+
+
+__all__ = ["run", "check_3d", "Missing3DError"]

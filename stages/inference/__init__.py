@@ -1,0 +1,2 @@
+"""Inference with a shipped bundle (an export stage's output) in onnxruntime, without torch: the runtime the
+evaluate stage scores, and the ``deepword infer`` command."""

@@ -1,0 +1,67 @@
+"""The rows of the paper's tables, each a configuration given by its Hydra overrides (the same ones the
+``experiment`` sweeps run), and which runs are that row.
+
+A run is a row when every parameter that defines the relation network (``relation.*`` except its training
+budget ``relation.train.*``, which the sweeps shorten) equals the row's composed configuration, composed
+with the run's own profile (the profile resizes the network too). So a row can never drift from
+``conf/table2_row`` or ``conf/ablation``: an ablated run is never the default row, whatever it ablates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.runs import RunRecord
+from pipeline.tracker import flatten_params
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+DEFINING_PREFIX = "relation."
+EXCLUDED_PREFIX = "relation.train."
+
+
+@dataclass(frozen=True)
+class Row:
+    label: str
+    overrides: tuple[str, ...]
+
+
+TABLE1 = (Row("Conv+fc", ("experiment=table1", "relation/backbone=conv_fc")),
+          Row("ResNet-18", ("experiment=table1", "relation/backbone=resnet18")))
+TABLE2 = tuple(Row(label, ("experiment=table2", f"table2_row={name}")) for label, name in (
+    ("Conv+fc", "conv_fc"), ("Neg0.1", "neg0.1"), ("-Neg", "fewer_neg"), ("-Sma", "small_mask"),
+    ("56", "input56"), ("56_ex_4", "ex4")))
+TABLE3_ROW = Row("DeepWORD (default)", ("experiment=table3",))
+
+
+class RowMatcher:
+    """Composes each row's configuration once per profile (Hydra's compose API over ``conf/``)."""
+
+    def __init__(self, conf_dir: Path = CONF):
+        self.conf_dir = conf_dir
+        self._definitions: dict[tuple[Row, str | None], dict[str, str]] = {}
+
+    def definition(self, row: Row, profile: str | None) -> dict[str, str]:
+        """The flattened parameters that define ``row`` under ``profile`` (None: the default profile)."""
+        key = (row, profile)
+        if key not in self._definitions:
+            from hydra import compose, initialize_config_dir
+            from hydra.core.global_hydra import GlobalHydra
+            from omegaconf import OmegaConf
+
+            overrides = [*row.overrides, *([f"profile={profile}"] if profile else [])]
+            GlobalHydra.instance().clear()
+            try:
+                with initialize_config_dir(version_base="1.3", config_dir=str(self.conf_dir)):
+                    cfg = OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
+            finally:
+                GlobalHydra.instance().clear()
+            self._definitions[key] = {k: v for k, v in flatten_params(cfg).items()
+                                      if k.startswith(DEFINING_PREFIX) and not k.startswith(EXCLUDED_PREFIX)}
+        return self._definitions[key]
+
+    def matches(self, row: Row, run: RunRecord) -> bool:
+        """Whether ``run`` is ``row``: its defining parameters equal the row's. A parameter the run does not
+        have (a setting added after it ran) is not held against it."""
+        profile = run.param("profile_name")
+        return all(run.params.get(k, v) == v for k, v in self.definition(row, profile).items())

@@ -1,0 +1,49 @@
+"""Progress output without a terminal is whole lines: no carriage returns, one line per epoch / tenth."""
+
+import io
+
+import torch
+
+from stages.progress import lightning_progress, on_terminal, progress_lines
+
+
+class FakeTerminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_loop_prints_a_line_every_tenth_without_a_terminal_and_a_bar_on_one():
+    log = io.StringIO()
+    assert list(progress_lines(range(20), 20, "frames", "frame", log)) == list(range(20))
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 10 and lines[-1].startswith("frames: 20/20 frames (") and "\r" not in log.getvalue()
+    terminal = FakeTerminal()
+    assert on_terminal(terminal) and list(progress_lines(range(3), 3, "frames", "frame", terminal)) == [0, 1, 2]
+    assert "\r" in terminal.getvalue()  # tqdm's live bar
+
+
+def test_training_without_a_terminal_prints_one_line_per_epoch():
+    import lightning as L
+
+    class Tiny(L.LightningModule):
+        def __init__(self):
+            super().__init__()
+            self.layer = torch.nn.Linear(2, 1)
+
+        def training_step(self, batch, batch_idx):
+            loss = self.layer(batch[0]).pow(2).mean()
+            self.log("train/loss", loss, on_epoch=True, on_step=False)
+            return loss
+
+        def configure_optimizers(self):
+            return torch.optim.SGD(self.parameters(), lr=0.1)
+
+    log = io.StringIO()
+    data = torch.utils.data.DataLoader(torch.utils.data.TensorDataset(torch.randn(8, 2)), batch_size=4)
+    trainer = L.Trainer(max_epochs=3, callbacks=lightning_progress("tiny", log), logger=False,
+                        enable_checkpointing=False, enable_model_summary=False, accelerator="cpu")
+    trainer.fit(Tiny(), data)
+    lines = log.getvalue().splitlines()
+    assert [line.split(":")[0] for line in lines] == ["tiny epoch 1/3", "tiny epoch 2/3", "tiny epoch 3/3"]
+    assert "train/loss=" in lines[0] and "\r" not in log.getvalue()
+    assert lightning_progress("tiny", FakeTerminal()) == []  # a terminal keeps Lightning's own bar
