@@ -45,7 +45,7 @@ def test_datasets_experiment_runs_the_default_configuration_on_ten_root_seeds():
     assert ours["relation"]["train"].pop("threads") == 1
     default["relation"]["train"].pop("threads")
     assert ours["relation"] == default["relation"] and ours["eval"] == default["eval"]
-    assert ours["pipeline"]["skip"] == ["detector"]
+    assert ours["pipeline"]["skip"] == ["detector", "bev"]
 
 
 def test_table3_is_one_job_of_the_default_configuration():
