@@ -10,6 +10,7 @@ import traceback
 from pathlib import Path
 
 from pipeline.errors import PipelineError
+from pipeline.ranks import current_rank
 from pipeline.runmode import is_single_run
 from pipeline.tracker import prestart_worker
 
@@ -97,8 +98,9 @@ def main() -> None:
     if any(a in INFO_FLAGS for a in argv):
         return _hydra_app()()
     # MLflow takes seconds to import: the tracking worker starts first and imports it while this
-    # process imports Hydra, composes, hashes and plans.
-    prestart_worker()
+    # process imports Hydra, composes, hashes and plans. Only rank 0 of a multi-process launch tracks.
+    if current_rank().is_zero:
+        prestart_worker()
     _compose_once_if_single_run(argv)
     _hydra_app()()
 

@@ -13,7 +13,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank"}
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,9 @@ class StageSpec:
     checks: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (config key, rules): see pipeline.checks
     optional: tuple[str, ...] = ()  # inputs the stage can run without (when pipeline.skip leaves them out)
     dataset: str | None = None  # the output is a dataset of this name: an MLflow dataset input of the run
+    # In a launch of several processes (torchrun, srun): every rank calls the stage (it joins a process group,
+    # e.g. DDP training), not rank 0 alone; only rank 0's outputs are kept (pipeline.ranks).
+    every_rank: bool = False
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -63,6 +66,9 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
             f"pipeline.stages.{name}.config: unknown top-level config key(s) {missing}; "
             f"known keys: {sorted(str(k) for k in cfg.keys())}"
         )
+    every_rank = node.get("every_rank", False)
+    if not isinstance(every_rank, bool):
+        raise PipelineError(f"pipeline.stages.{name}.every_rank: expected true or false, got {every_rank!r}")
     return StageSpec(
         name=name,
         module=module,
@@ -73,6 +79,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         checks=parse_checks(name, node.get("checks")),
         optional=optional,
         dataset=None if node.get("dataset") is None else str(node.get("dataset")),
+        every_rank=every_rank,
     )
 
 

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import importlib
 import os
+import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -23,6 +25,7 @@ from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stage
 from pipeline.errors import PipelineError
 from pipeline.keys import key_parts, resolved_subtree
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
+from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
 from pipeline.tracker import check_server, flatten_params, open_tracker
 
@@ -117,11 +120,17 @@ def _stage_cfg(cfg: DictConfig, spec: StageSpec) -> DictConfig:
 
 
 def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
-             inputs: dict[str, Path], run_id: str, uri: str) -> Entry:
+             inputs: dict[str, Path], run_id: str, uri: str, launch: LaunchFile) -> Entry:
     """Run the stage into its work dir and commit it; the caller holds the key's lock."""
+    if spec.every_rank and launch.rank.world_size > 1 and cache.partial_dir(spec.name, plan.key).exists():
+        # The other ranks start the stage from nothing, and ranks of one process group must start alike.
+        _say(f"Stage '{spec.name}': not resuming an interrupted attempt: {launch.rank.world_size} ranks start it afresh")
+        cache.abort(cache.partial_dir(spec.name, plan.key))
     tmp, resumed = cache.begin(spec.name, plan.key)
     if resumed:
         _say(f"Stage '{spec.name}': resuming from what an interrupted attempt left in {tmp}")
+    if spec.every_rank:
+        launch.computing(spec.name, plan.key, resumed, tmp / "out")
     start = time.perf_counter()
     try:
         func = getattr(importlib.import_module(spec.module), spec.function, None)
@@ -147,7 +156,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
 
 
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
-               outputs: dict[str, Path], settings: dict) -> dict:
+               outputs: dict[str, Path], settings: dict, launch: LaunchFile) -> dict:
     name, key = plan.name, plan.key
     inputs = {i: outputs[i] for i in spec.inputs if i in outputs}  # an optional input may be left out
     start = time.perf_counter()
@@ -164,7 +173,7 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                     name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"]}, parent_id
                 )
                 try:
-                    entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"])
+                    entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"], launch)
                 except BaseException:
                     tracker.end(run_id, "FAILED")
                     raise
@@ -224,10 +233,33 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     ``in_process_tracking``: None picks in-process MLflow when it is already imported, else the worker.
     """
     t0 = time.perf_counter()
+    rank = current_rank()
     launch_dir, hydra_dir, overrides = _hydra_runtime()
     launch_dir = launch_dir or Path(os.getcwd())
     run_dir = run_dir or hydra_dir or launch_dir
     settings = _settings(cfg, launch_dir)
+    if not rank.is_zero:
+        return _follow_rank_zero(rank, cfg, settings)
+    launch = LaunchFile(settings["cache_dir"], rank)
+    # Processes a stage starts (Lightning's ddp launcher re-runs this command) learn which launch they join.
+    previous_id = os.environ.get(LAUNCH_ID_VARIABLE)
+    os.environ[LAUNCH_ID_VARIABLE] = launch.launch_id
+    try:
+        summary = _run_rank_zero(cfg, rank, settings, launch, run_dir, launch_dir, overrides, in_process_tracking, t0)
+    except BaseException as exc:
+        launch.failed(exc)
+        raise
+    finally:
+        if previous_id is None:
+            os.environ.pop(LAUNCH_ID_VARIABLE, None)
+        else:
+            os.environ[LAUNCH_ID_VARIABLE] = previous_id
+    launch.finished()
+    return summary
+
+
+def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launch_dir, overrides,
+                   in_process_tracking, t0) -> dict:
     specs = load_stages(cfg)
     check_stage_names(specs, settings["force"], "pipeline.force")
     selected, left_out = select_stages(specs, settings["until"], settings["skip"])
@@ -238,6 +270,9 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     cache = Cache(settings["cache_dir"])
     plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"])
     _say(format_plan(plans, str(cache.root), left_out))
+    launch.start({p.name: p.key for p in plans})
+    if rank.world_size > 1:
+        _say(f"{rank.described} (launch {launch.launch_id}): this rank plans, tracks and writes the cache")
     ignored = [n for n in settings["force"] if n in left_out]
     if ignored:
         _say(f"note: forced stage(s) {ignored} are left out of this run ({'; '.join(left_out[n] for n in ignored)}); "
@@ -247,12 +282,14 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
 
     tracker = open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0,
+                        launch)
     finally:
         tracker.close()
 
 
-def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0) -> dict:
+def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0,
+             launch: LaunchFile) -> dict:
     resolved = OmegaConf.to_container(cfg, resolve=True)
     parent_tags = {
         "profile": str(cfg.get("profile_name", "")),
@@ -270,7 +307,8 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
     outputs: dict[str, Path] = {}
     try:
         for plan in plans:
-            results[plan.name] = _run_stage(plan, specs[plan.name], cfg, cache, tracker, parent_id, outputs, settings)
+            results[plan.name] = _run_stage(plan, specs[plan.name], cfg, cache, tracker, parent_id, outputs, settings,
+                                            launch)
             outputs[plan.name] = Path(results[plan.name]["output_dir"])
     except BaseException:
         tracker.end(parent_id, "FAILED")
@@ -299,3 +337,110 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
         _say("Pipeline up to date.")
     return summary
 
+
+
+# -- ranks other than 0 (pipeline.ranks) ---------------------------------------------------------------
+
+
+class _RankZeroWatch:
+    """What a waiting rank checks on every poll: rank 0's launch file (its error, its plan) and whether the
+    process that started this rank still runs (a parent that died leaves no one to wait for)."""
+
+    def __init__(self, rank: Rank, cache: Cache, my_plan: dict[str, str]):
+        self.rank, self.cache, self.my_plan = rank, cache, my_plan
+        self.parent = os.getppid()
+
+    def read(self) -> dict:
+        state = read_launch_file(self.cache.root, self.rank.launch_id) or {}
+        if state.get("error"):
+            raise PipelineError(f"{self.rank.described}: rank 0 of launch {self.rank.launch_id} failed "
+                                f"({state['error']}); this rank stops too")
+        theirs = state.get("plan") or {}
+        differ = sorted(s for s in set(theirs) | set(self.my_plan) if theirs.get(s) != self.my_plan.get(s))
+        if theirs and differ:
+            raise PipelineError(
+                f"{self.rank.described}: rank 0 planned other cache keys for stage(s) {differ}: the ranks run "
+                "different code or config (check every node has the same checkout and command line)")
+        if os.getppid() != self.parent:
+            raise PipelineError(f"{self.rank.described}: the process that launched this rank exited")
+        return state
+
+
+def _entry_if_complete(cache: Cache, stage: str, key: str, verify: str) -> Entry | None:
+    if not (cache.entry_dir(stage, key) / "manifest.json").is_file():  # cheap test first: this runs per poll
+        return None
+    return cache.lookup(stage, key, verify)[0]
+
+
+def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
+    """Build rank 0's plan, then for each ``every_rank`` stage in order: join it when rank 0 computes it
+    (the stage runs in a scratch directory, deleted afterwards), skip it when rank 0 uses its cache entry.
+    Writes nothing to the cache or MLflow."""
+    if rank.launch_id is None:
+        raise PipelineError(f"{rank.described}: cannot tell which launch this rank belongs to; set "
+                            f"{LAUNCH_ID_VARIABLE} to one value on every rank (torchrun and SLURM provide one)")
+    specs = load_stages(cfg)
+    selected, _ = select_stages(specs, settings["until"], settings["skip"])
+    cache = Cache(settings["cache_dir"])
+    verify = settings["verify"]
+    forced = set(settings["force"])
+    keys: dict[str, str] = {}
+    for name in selected:
+        keys[name] = key_parts(specs[name], cfg, keys).key
+    watch = _RankZeroWatch(rank, cache, keys)
+    _say(f"{rank.described} (launch {rank.launch_id}): following rank 0, which alone writes the cache and MLflow")
+    joined, skipped = [], []
+    for name in (n for n in selected if specs[n].every_rank):
+        key = keys[name]
+        while True:
+            # The entry first, the announcement second: an entry rank 0 committed in this launch is still
+            # announced then. A forced stage is computed again although its entry exists: only announced.
+            in_cache = name not in forced and _entry_if_complete(cache, name, key, verify) is not None
+            state = watch.read()
+            computing = (state.get("computing") or {}).get(name)
+            if computing is not None:
+                if computing["key"] != key:
+                    raise PipelineError(f"{rank.described}: rank 0 computes stage '{name}' under another key: the "
+                                        "ranks run different code or config")
+                break
+            if in_cache:
+                break
+            time.sleep(POLL_SECONDS)
+        if computing is None:
+            _say(f"{rank.described}: stage '{name}' is in the cache, nothing to join")
+            skipped.append(name)
+            continue
+        inputs = {}
+        for i in specs[name].inputs:
+            if i not in keys:
+                continue  # an optional input left out of this run
+            # Committed before rank 0 started this stage; a network filesystem may show it a little later.
+            while (entry := _entry_if_complete(cache, i, keys[i], verify)) is None:
+                watch.read()
+                time.sleep(POLL_SECONDS)
+            inputs[i] = entry.out_dir
+        _say(f"{rank.described}: joining stage '{name}' (rank 0 computes it)")
+        _join_stage(specs[name], cfg, inputs, computing, rank)
+        joined.append(name)
+    _say(f"{rank.described}: done (joined {joined or 'no stage'}); rank 0 records the results")
+    return {"rank": rank.index, "world_size": rank.world_size, "launch_id": rank.launch_id,
+            "joined": joined, "skipped": skipped}
+
+
+def _join_stage(spec: StageSpec, cfg: DictConfig, inputs: dict[str, Path], computing: dict, rank: Rank) -> None:
+    scratch = Path(tempfile.mkdtemp(prefix=f"pipeline-{spec.name}-rank{rank.index}-"))
+    try:
+        out = scratch / "out"
+        if computing.get("resumed"):
+            # Rank 0 resumes from its work dir (e.g. a last checkpoint): start from the same state. Rank 0
+            # started this rank from inside the stage and waits for it, so the directory is not changing.
+            shutil.copytree(computing["work_dir"], out)
+        else:
+            out.mkdir()
+        func = getattr(importlib.import_module(spec.module), spec.function, None)
+        if func is None:
+            raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
+        tracking.set_active(None)  # only rank 0 logs
+        func(_stage_cfg(cfg, spec), inputs, out)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)

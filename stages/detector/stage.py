@@ -82,6 +82,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.render import write_detection_grid
     from stages.lightning_logs import route_lightning_logs
     from stages.precision import BF16, resolve_precision
+    from stages.replicas import check_replicas_agree
 
     route_lightning_logs()
     out_dir = Path(out_dir)
@@ -119,6 +120,9 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     last = out_dir / "checkpoints" / "last.ckpt"
     trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
     train_seconds = time.perf_counter() - started
+    check_replicas_agree(module, "detector")
+    if not trainer.is_global_zero:  # another rank of a DDP launch: rank 0 saves, predicts and reports
+        return {}
 
     net = build_centernet(mcfg)
     _load_best_weights(net, checkpoint.best_model_path or str(last))

@@ -96,8 +96,8 @@ class RelationDataModule(L.LightningDataModule):
 class RelationCounts(Metric):
     """Sums of ``decode.relation_counts`` over batches (and processes, under DDP)."""
 
-    def __init__(self):
-        super().__init__()
+    def __init__(self, **metric_options):
+        super().__init__(**metric_options)
         for key in COUNT_KEYS:
             self.add_state(key, default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
 
@@ -241,7 +241,8 @@ class RelationModule(L.LightningModule):
 def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> dict[str, float]:
     """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU."""
     module = module.eval()
-    counts = RelationCounts()
+    # Scored by one process (rank 0 after a DDP fit, the others have left): nothing to gather from other ranks.
+    counts = RelationCounts(sync_on_compute=False)
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
         pred_owner, pred_couple = module.decide(module(batch), batch)
         counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],

@@ -76,6 +76,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     from stages.relation.curves import CurveHistory, plot_curves
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
     from stages.relation.model import ModelConfig, count_parameters, size_mb
+    from stages.replicas import check_replicas_agree
 
     route_lightning_logs()
     started = time.perf_counter()
@@ -124,7 +125,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                         enable_model_summary=False)
     last = ckpt_dir / "last.ckpt"
     trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
-    if not trainer.is_global_zero:
+    check_replicas_agree(module, "relation")
+    if not trainer.is_global_zero:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
 
     if not history.rows and last.is_file():  # ddp_spawn: the epochs ran in child processes

@@ -106,8 +106,9 @@ def run_pipeline(tmp: Path, overrides: list[str], uri: str, timeout: float = 600
 
 
 class MlflowServer:
-    """A real ``mlflow server`` (or ``mlflow ui``) on 127.0.0.1 over a sqlite store, artifacts in ``tmp``;
-    started in its own process group so that stopping it also stops its web workers."""
+    """A real ``mlflow server`` (or ``mlflow ui``) on 127.0.0.1 over a sqlite store (or ``backend_uri``), the
+    artifact store in ``tmp`` proxied by the server; started in its own process group so that stopping it
+    also stops its web workers."""
 
     def __init__(self, tmp: Path, command: str = "server", backend_uri: str | None = None):
         self.port = free_port()
@@ -117,7 +118,7 @@ class MlflowServer:
         args = [str(exe), command, "--host", "127.0.0.1", "--port", str(self.port),
                 "--backend-store-uri", self.backend_uri, "--workers", "1"]
         if command == "server":
-            args += ["--artifacts-destination", str(tmp / "artifacts")]
+            args += ["--serve-artifacts", "--artifacts-destination", str(tmp / "artifacts")]
         self.log = (tmp / f"mlflow_{command}.log").open("w")
         self.proc = subprocess.Popen(args, cwd=tmp, stdout=self.log, stderr=subprocess.STDOUT,
                                      start_new_session=True)

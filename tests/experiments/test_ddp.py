@@ -1,6 +1,8 @@
 """`trainer=ddp`: the relation network trained by Lightning DDP with 2 CPU processes (gloo), inside a real
-pipeline run in a subprocess (the way users run it). Data and priors come from the shared smoke run's
-cache; the relation stage is a miss because the trainer config is part of its key."""
+pipeline run in a subprocess (the way users run it). Lightning's `ddp` starts rank 1 by re-running the
+command; the rank-aware engine makes that process join the training and nothing else. Data and priors come
+from the shared smoke run's cache; the relation stage is a miss because the trainer config is part of its
+key. (torchrun: tests/experiments/test_clusters.py.)"""
 
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ def test_ddp_trains_relation_on_two_cpu_processes_logs_once_and_saves_loadable_w
                         uri, cache=smoke_store["dir"] / "cache")
     log = proc.stdout + proc.stderr
     assert "distributed_backend=gloo" in log and "Starting with 2 processes" in log
+    assert "local rank 1 of node 0" in log and "joining stage 'relation'" in log
 
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["stages"]["data"]["hit"] and summary["stages"]["priors"]["hit"]
@@ -43,4 +46,4 @@ def test_ddp_trains_relation_on_two_cpu_processes_logs_once_and_saves_loadable_w
     weights = torch.load(relation["output_dir"] + "/relation.pt", map_location="cpu", weights_only=True)
     assert weights and all(torch.isfinite(v).all() for v in weights.values() if v.is_floating_point())
     meta = json.loads(open(relation["output_dir"] + "/relation.json").read())
-    assert len(meta["curves"]) == 2  # the curves trained in the spawned ranks came back
+    assert len(meta["curves"]) == 2

@@ -143,11 +143,18 @@ def test_sweep_summary_counts_computed_and_reused_entries(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_parallel_sweep_computes_shared_stages_once(tmp_path):
-    proc = run_pipeline(tmp_path, ["experiment=table1", "profile=smoke", "data.frames=4", "data.workers=2", "pipeline.until=priors"],
+@pytest.mark.parametrize("launcher", [
+    "local_parallel",   # joblib: the jobs are worker processes of the launching one
+    "submitit_local",   # submitit's local executor: each job a process of its own, as on SLURM nodes
+])
+def test_parallel_sweep_computes_shared_stages_once(tmp_path, launcher):
+    proc = run_pipeline(tmp_path, ["experiment=table1", "profile=smoke", "data.frames=4", "data.workers=2", "pipeline.until=priors",
+                                   f"hydra/launcher={launcher}"],
                         f"sqlite:///{tmp_path / 'mlflow.db'}")
     summary = json.loads((tmp_path / "sweep" / "sweep_summary.json").read_text())
     assert len(summary["jobs"]) == 2
+    if launcher == "submitit_local":  # the jobs really went through submitit: its job folders and results
+        assert len(list((tmp_path / "sweep" / ".submitit").glob("*/*_result.pkl"))) == 2
     for stage in ("data", "priors"):
         assert summary["stages"][stage] == {"jobs": 2, "distinct_keys": 1, "computed": 1, "reused": 1}
     assert "computed / jobs" in proc.stdout

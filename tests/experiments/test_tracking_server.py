@@ -1,5 +1,6 @@
-"""`tracking=server` for real: a `mlflow server` on 127.0.0.1 (sqlite backend and artifact store in tmp),
-the smoke pipeline (data + priors) run against it in a subprocess, and the runs read back over HTTP."""
+"""`tracking=server` for real: a `mlflow server` on 127.0.0.1 (artifact store in tmp, proxied by the server)
+on a sqlite backend and on the team setup's PostgreSQL (a throwaway cluster started by the test), the smoke
+pipeline (data + priors) run against it in a subprocess, and the runs read back over HTTP."""
 
 from __future__ import annotations
 
@@ -9,18 +10,33 @@ import sys
 import pytest
 
 from tests.experiments.pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
+from tests.experiments.postgres_cluster import PostgresCluster, find_bin_dir
 
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture()
-def server(tmp_path):
-    srv = MlflowServer(tmp_path)
+@pytest.fixture(params=["sqlite", "postgresql"])
+def server(request, tmp_path):
+    database = None
+    if request.param == "postgresql":
+        bin_dir = find_bin_dir()
+        if bin_dir is None:
+            pytest.skip("PostgreSQL binaries (initdb, pg_ctl, createdb) not found on PATH or in "
+                        "/usr/lib/postgresql/*/bin: `apt-get install postgresql` (.ci/run does)")
+        database = PostgresCluster(bin_dir)
     try:
-        srv.wait_ready()
-        yield srv
+        if database is not None:
+            database.start()
+        srv = MlflowServer(tmp_path, backend_uri=database.uri if database else None)
+        srv.database = database
+        try:
+            srv.wait_ready()
+            yield srv
+        finally:
+            srv.stop()
     finally:
-        srv.stop()
+        if database is not None:
+            database.stop()
 
 
 def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_server(server, tmp_path):
@@ -53,6 +69,17 @@ def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_serve
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
     stored = list((tmp_path / "artifacts").rglob(png.split("/")[-1]))
     assert stored, "the artifact is in the server's artifact store"
+
+    if server.database is not None:  # the runs are rows of the PostgreSQL database, not of some other store
+        import sqlalchemy
+
+        engine = sqlalchemy.create_engine(server.database.uri)
+        try:
+            with engine.connect() as db:
+                stored_runs = set(db.execute(sqlalchemy.text("SELECT run_uuid FROM runs")).scalars())
+        finally:
+            engine.dispose()
+        assert {r.info.run_id for r in runs} == stored_runs
 
 
 def test_unreachable_server_fails_before_any_stage(tmp_path):
