@@ -1,4 +1,5 @@
-"""Label-consistent augmentation: a horizontal flip and photometric jitter.
+"""Label-consistent augmentation: a horizontal flip, a random scale, photometric jitter and sensor effects
+(blur, noise, JPEG artefacts, grayscale).
 
 Mirroring a picture of a vehicle does not change which of its wheels is the front one in 3-D, nor which
 wheel belongs to which vehicle, so a flip mirrors the box coordinates and keeps relations, roles and the
@@ -51,3 +52,55 @@ def photometric_jitter(image: np.ndarray, rng: np.random.Generator, brightness: 
     for i in rng.permutation(len(ops)):
         x = ops[i](x)
     return np.clip(x, 0, 255).astype(np.uint8)
+
+
+def sensor_effects(image: np.ndarray, rng: np.random.Generator, blur: float = 0.0, noise: float = 0.0,
+                   jpeg: float = 0.0, grayscale: float = 0.0, max_blur_sigma: float = 1.5,
+                   max_noise_std: float = 8.0, jpeg_quality: tuple[int, int] = (30, 90)) -> np.ndarray:
+    """What other cameras and codecs do to a picture, each with its own probability: Gaussian blur (sigma up
+    to ``max_blur_sigma`` px), additive Gaussian noise (std up to ``max_noise_std`` grey levels), a JPEG
+    round trip at a quality in ``jpeg_quality`` and conversion to grey (three equal channels). A detector that
+    has only seen the renderer's clean, sharp, saturated pixels keys on them; geometry is untouched."""
+    import cv2
+
+    out = image
+    if rng.random() < blur:
+        out = cv2.GaussianBlur(out, (0, 0), sigmaX=float(rng.uniform(0.3, max_blur_sigma)))
+    if rng.random() < noise:
+        std = rng.uniform(0.0, max_noise_std)
+        out = np.clip(out.astype(np.float32) + rng.normal(0.0, std, out.shape), 0, 255).astype(np.uint8)
+    if rng.random() < jpeg:
+        quality = int(rng.integers(jpeg_quality[0], jpeg_quality[1] + 1))
+        ok, encoded = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+        if ok:
+            out = np.ascontiguousarray(cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1])
+    if rng.random() < grayscale:
+        grey = out.astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+        out = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=-1)
+    return out
+
+
+def rescale(image: np.ndarray, xyxy: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """The image resized by ``factor`` (area interpolation when shrinking) and its boxes scaled alike."""
+    import cv2
+
+    if factor == 1.0:
+        return image, np.asarray(xyxy, dtype=np.float64)
+    h, w = image.shape[:2]
+    size = (max(1, int(round(w * factor))), max(1, int(round(h * factor))))
+    interp = cv2.INTER_AREA if factor < 1 else cv2.INTER_LINEAR
+    scale = np.array([size[0] / w, size[1] / h, size[0] / w, size[1] / h])
+    return cv2.resize(image, size, interpolation=interp), np.asarray(xyxy, dtype=np.float64) * scale
+
+
+def crop_or_pad(image: np.ndarray, x0: int, y0: int, width: int, height: int, fill: tuple[int, ...]) -> np.ndarray:
+    """The ``width`` x ``height`` window at (x0, y0) of the image; where it leaves the image, ``fill``.
+    A window may start at negative coordinates (an image smaller than the window sits inside it)."""
+    out = np.empty((height, width, image.shape[2]), dtype=image.dtype)
+    out[:] = fill
+    h, w = image.shape[:2]
+    sx0, sy0 = max(0, x0), max(0, y0)
+    sx1, sy1 = min(w, x0 + width), min(h, y0 + height)
+    if sx1 > sx0 and sy1 > sy0:
+        out[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = image[sy0:sy1, sx0:sx1]
+    return out

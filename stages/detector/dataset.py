@@ -2,10 +2,11 @@
 
 Each image is decoded and letterboxed to the network input size once and kept in memory (uint8) for
 the dataset's lifetime, so later epochs pay neither the PNG decode nor the resize. Training items are
-then augmented on that small uint8 image: a horizontal flip, an optional random crop of ``crop`` =
-(width, height) (CenterNet's random-crop augmentation: the network is fully convolutional, so it trains
-on crops and still runs on the whole letterboxed image at inference, where small wheels keep the pixels
-of the full input scale) and photometric jitter on the crop only.
+then augmented on that small uint8 image: a horizontal flip, a random scale (multi-scale training), an
+optional random crop of ``crop`` = (width, height) (CenterNet's random-crop augmentation: the network is
+fully convolutional, so it trains on crops and still runs on the whole letterboxed image at inference, where
+small wheels keep the pixels of the full input scale; a rescaled image without a crop is cropped or padded
+back to the input size), then photometric jitter and sensor effects on the crop only.
 """
 
 from __future__ import annotations
@@ -17,8 +18,15 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from stages.detector.augment import flip_image, flip_record, photometric_jitter
-from stages.detector.letterbox import boxes_to_input, letterbox_for, letterbox_image, normalise
+from stages.detector.augment import (
+    crop_or_pad,
+    flip_image,
+    flip_record,
+    photometric_jitter,
+    rescale,
+    sensor_effects,
+)
+from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image, normalise
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
 from stages.detector.targets import centernet_targets
 from stages.word_format import Record, load_image
@@ -85,14 +93,22 @@ class CenterNetDataset(Dataset):
         if rng.random() < aug["flip"]:
             image, record = flip_image(image), flip_record(record)
         xyxy, classes = record.xyxy, record.class_ids
-        if self.crop is not None:
-            cw, ch = self.crop
-            x0 = int(rng.integers(0, image.shape[1] - cw + 1))
-            y0 = int(rng.integers(0, image.shape[0] - ch + 1))
-            image = image[y0:y0 + ch, x0:x0 + cw]
+        low, high = aug.get("scale") or (1.0, 1.0)
+        if high > low or low != 1.0:
+            # multi-scale training (CenterNet's random scale): objects at sizes between the input scale's
+            # neighbours, so near and far vehicles of other lenses and image sizes are not new sizes
+            image, xyxy = rescale(image, xyxy, float(rng.uniform(low, high)))
+        if self.crop is not None or image.shape[:2] != (self.input_height, self.input_width):
+            cw, ch = self.crop or (self.input_width, self.input_height)
+            # the window anywhere over the image, or the image anywhere inside a larger window
+            x0 = int(rng.integers(min(0, image.shape[1] - cw), max(0, image.shape[1] - cw) + 1))
+            y0 = int(rng.integers(min(0, image.shape[0] - ch), max(0, image.shape[0] - ch) + 1))
+            image = crop_or_pad(image, x0, y0, cw, ch, PAD_VALUE)
             xyxy, keep = crop_boxes(xyxy, x0, y0, cw, ch, aug.get("crop_min_visible", 0.5))
             classes = classes[keep]
         image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"])
+        image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
+                               aug.get("grayscale", 0.0))
         return image, xyxy, classes
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:

@@ -30,5 +30,7 @@ class CenterNetHeads(nn.Module):
             nn.init.zeros_(branch[-1].bias)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        heat = torch.clamp(torch.sigmoid(self.hm(x)), HEATMAP_EPS, 1 - HEATMAP_EPS)
-        return heat, self.wh(x), self.reg(x)
+        # In fp32 even under bf16 autocast: bf16 rounds 1 - 1e-4 to 1 (log(1 - p) = -inf in the focal loss),
+        # and its 8-bit mantissa would put decoded box corners ~2 input pixels off.
+        heat = torch.clamp(torch.sigmoid(self.hm(x).float()), HEATMAP_EPS, 1 - HEATMAP_EPS)
+        return heat, self.wh(x).float(), self.reg(x).float()

@@ -81,6 +81,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
     from stages.lightning_logs import route_lightning_logs
+    from stages.precision import BF16, resolve_precision
     from stages.replicas import check_replicas_agree
 
     route_lightning_logs()
@@ -93,17 +94,25 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     dataset = open_dataset(inputs["data"])
     splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
     mcfg = model_config(det)
-    module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"])
+    precision = resolve_precision(trainer_cfg.get("precision", "32-true"), trainer_cfg.get("accelerator", "auto"))
+    # channels_last only under bf16: oneDNN's fp32 NHWC convolution backward segfaults for narrow stems
+    # (an 8-channel one, torch 2.13); the bf16 kernels run every width tested.
+    channels_last = bool(det["channels_last"]) and precision == BF16
+    module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"],
+                             channels_last)
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
                               det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
     checkpoint, latest = best_and_latest(out_dir / "checkpoints", "val/ap50", "max")
+    loggers = _loggers(out_dir)
+    for logger in loggers:  # the precision this machine trained in, beside the configured "auto"
+        logger.log_hyperparams({"detector.precision": precision, "detector.channels_last": channels_last})
     trainer = L.Trainer(
         max_epochs=det["epochs"], limit_train_batches=det["limit_train_batches"],
         limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
-        precision=trainer_cfg.get("precision", "32-true"), logger=_loggers(out_dir), callbacks=[checkpoint, latest],
+        precision=precision, logger=loggers, callbacks=[checkpoint, latest],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()
@@ -119,7 +128,11 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     _load_best_weights(net, checkpoint.best_model_path or str(last))
     save_detector(out_dir, net, mcfg)
 
-    metrics = {"detector.train_seconds": train_seconds, "detector.epochs": float(trainer.current_epoch)}
+    # images per second of the whole fit (validation epochs included): what an epoch budget is derived from
+    train_images = trainer.global_step * det["batch_size"]
+    metrics = {"detector.train_seconds": train_seconds, "detector.epochs": float(trainer.current_epoch),
+               "detector.train_images_per_s": train_images / max(train_seconds, 1e-9),
+               "detector.bf16": float(precision == BF16)}
     predictions = {}
     for split in ("val", "test"):
         preds = predict_records(net, dataset.root, splits[split], mcfg["input_width"], mcfg["input_height"],

@@ -35,15 +35,61 @@ def table3(methods: dict[str, dict[str, dict[str, float]]], metric: str, with_pa
     return lines
 
 
-def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list[str], title: str) -> str:
-    """``results`` as in ``flatten``; ``sizes[subset]`` = {"images": n, "wheels": n evaluated}."""
+HEADLINE_METHOD = "deepword"
+HEADLINE_METRICS = ("pair_f1", "pair_precision", "pair_recall", "image_acc")
+
+
+def headline_metrics(results: dict) -> dict[str, float]:
+    """The few numbers a run is judged by, first in the stage's metrics (the pipeline summary shows a stage's
+    first ones): end-to-end DeepWORD pair_f1 on hard and mixed, image_acc on hard, and the ground-truth-box
+    pair_f1 on mixed to compare with."""
+    wanted = [("detected", "hard", "pair_f1"), ("detected", "mixed", "pair_f1"), ("gt", "mixed", "pair_f1"),
+              ("detected", "hard", "image_acc")]
+    return {metric_name(b, HEADLINE_METHOD, s, m): float(results[b][HEADLINE_METHOD][s][m])
+            for b, s, m in wanted if s in results.get(b, {}).get(HEADLINE_METHOD, {})}
+
+
+def headline_markdown(results: dict, detector: dict | None) -> list[str]:
+    """End to end first: DeepWORD on detected boxes beside ground-truth boxes, per subset, and the detector's
+    AP and operating point (from the export bundle's ``detector`` entry) that the detected rows depend on."""
+    rows = [(b, results[b][HEADLINE_METHOD]) for b in ("detected", "gt") if HEADLINE_METHOD in results.get(b, {})]
+    if not rows:
+        return []
+    out = ["## End to end: DeepWORD on detected boxes beside ground-truth boxes", "",
+           "| boxes | " + " | ".join(f"{m} {s}" for m in HEADLINE_METRICS for s in SUBSETS) + " |",
+           "|---|" + "---:|" * (len(HEADLINE_METRICS) * len(SUBSETS))]
+    for boxes, subsets in rows:
+        out.append(f"| {BOX_TITLES.get(boxes, boxes)} | " + " | ".join(
+            f"{subsets[s][m]:.2f}" if s in subsets else "-" for m in HEADLINE_METRICS for s in SUBSETS) + " |")
+    out.append("")
+    if detector:
+        ap = detector.get("ap") or {}
+        classes = detector.get("class_names", [])
+        if ap:
+            out.append("Detector, test split: " + "; ".join(
+                f"{c} AP@0.5 {ap.get(f'detector.test.ap50.{c}', float('nan')):.1f}, "
+                f"AP@[.5:.95] {ap.get(f'detector.test.ap.{c}', float('nan')):.1f}" for c in classes) + ".")
+        op = detector.get("operating_point")
+        if op:
+            out.append("Operating point (score thresholds chosen on val by end-to-end DeepWORD pair_f1): "
+                       + ", ".join(f"{c} {op[c]:.2f}" for c in classes if c in op) + ".")
+        out.append("")
+    return out
+
+
+def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list[str], title: str,
+                    lead: list[str] | None = None) -> str:
+    """``results`` as in ``flatten``; ``sizes[subset]`` = {"images": n, "wheels": n evaluated}; ``lead``:
+    markdown lines shown before the per-metric tables (the end-to-end headline)."""
     out = [f"# {title}", ""]
     out.append("Subsets: " + ", ".join(f"{s} = {sizes[s]['images']} images / {sizes[s]['wheels']} evaluated wheels"
                                        for s in SUBSETS if s in sizes) + ".")
     out.append("Metrics in percent (docs/design.md §7). The paper's Table 3 rows (italic) are printed beside "
                "wheel_acc and image_acc because the paper does not say which one it reports.")
     out.append("")
-    for boxes, methods in results.items():
+    out += lead or []
+    # detected boxes first: end to end is what a user with images gets
+    for boxes, methods in sorted(results.items(), key=lambda item: item[0] != "detected"):
         out += [f"## {BOX_TITLES.get(boxes, boxes)}", ""]
         for metric in METRICS:
             out += table3(methods, metric, metric in PAPER_METRICS) + [""]

@@ -14,13 +14,22 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
-from stages.evaluate.report import PAPER_TABLE3, flatten, render_markdown
+from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
 
 BASELINES_FILE = "baselines.json"
 SHIFT_DIR = "shift"   # the held-out domain's predictions and report
+
+
+def detector_entry(inputs: dict[str, Path]) -> dict | None:
+    """The export bundle's detector entry (AP, operating point), or None without an export or a detector."""
+    if "export" not in inputs:
+        return None
+    from stages.inference.runtime import read_bundle
+
+    return read_bundle(inputs["export"]).get("detector")
 
 
 def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
@@ -96,7 +105,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if "shift_data" in inputs:
         metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations"))
+    lead = headline_markdown(results, detector_entry(inputs))
+    (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
+                                                       lead))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
         {name: baseline_params(m) for name, m in methods.items() if name in ("logic", "logic_plus", "prior")},
         indent=1))
@@ -110,7 +121,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
             shutil.copy(out_dir / SHIFT_DIR / name, artifacts / f"shift_{name}")
     test = ds.subset("test")
     write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images), min_px)
-    return metrics
+    return {**headline_metrics(results), **metrics}
 
 
 def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:

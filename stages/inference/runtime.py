@@ -155,6 +155,15 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
 # --- detector ---------------------------------------------------------------------------------------
 
+def keep_at(record: Record, thresholds: Sequence[float]) -> Record:
+    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``);
+    box ids are kept, so kept boxes still name the detections they came from."""
+    from dataclasses import replace
+
+    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[record.class_ids.astype(int)]
+    return replace(record, boxes=record.boxes[keep].copy(), relations=[], wheel_pairs=[])
+
+
 class NoDetectorError(LookupError):
     """The bundle was exported without a detector (its run had ``pipeline.skip=[detector]``)."""
 
@@ -163,7 +172,7 @@ class OnnxDetector:
     """The exported CenterNet: letterbox + normalise (``stages.detector.letterbox``), onnxruntime, and the
     detector stage's own detections -> WORD record conversion."""
 
-    def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
+    def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1, at_operating_point: bool = True):
         bundle_dir = Path(bundle_dir)
         cfg = read_bundle(bundle_dir)["detector"]
         if cfg is None:
@@ -171,13 +180,25 @@ class OnnxDetector:
                                   "pipeline.skip=[detector]); use a run that trained one")
         self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
         self.score_threshold = float(cfg["score_threshold"])
+        # Per-class thresholds chosen on val (stages/export/operating_point.py); a bundle from before they existed,
+        # or at_operating_point=False (AP, the threshold search itself), keeps everything above score_threshold.
+        operating_point = cfg.get("operating_point") if at_operating_point else None
+        self.class_thresholds = None if not operating_point else tuple(
+            max(self.score_threshold, float(operating_point[name])) for name in cfg["class_names"])
         self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)
 
     def detect(self, rgb: np.ndarray, source: Record) -> Record:
-        """``source``'s image (RGB uint8) -> a record with its detected boxes (real scores, no relations)."""
+        """``source``'s image (RGB uint8) -> a record with its detected boxes (real scores, no relations), those
+        under their class's operating-point threshold left out."""
         from stages.detector.letterbox import preprocess
         from stages.detector.predict import detections_to_record
 
         x, box = preprocess(rgb, self.input_width, self.input_height)
         (detections,) = self.session.run(["detections"], {DETECTOR_INPUT: x[None]})
-        return detections_to_record(detections[0], source, box, self.score_threshold)
+        record = detections_to_record(detections[0], source, box, self.score_threshold)
+        if self.class_thresholds is None:
+            return record
+        kept = keep_at(record, self.class_thresholds)
+        # ids 0..N-1 again, as every detection record has them
+        kept.boxes[:, 6] = np.arange(len(kept.boxes))
+        return kept

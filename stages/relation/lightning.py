@@ -169,17 +169,27 @@ def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, ne
 class RelationModule(L.LightningModule):
     """Training and validation of RelationNet. Hyper-parameters are plain dicts (checkpoint-safe)."""
 
-    def __init__(self, model: dict, loss: dict, decode: dict, optim: dict):
+    def __init__(self, model: dict, loss: dict, decode: dict, optim: dict, backbone_bf16: bool = False):
         super().__init__()
         self.save_hyperparameters()
         self.model = RelationNet(ModelConfig(**model))
         self.val_counts = RelationCounts()
+        # bf16 autocast and channels_last for the crop backbone only, which holds nearly all the FLOPs; the
+        # graph part and the cosines stay fp32, where bf16's 8-bit mantissa would blur the 0.5 decisions.
+        self.backbone_bf16 = backbone_bf16
+        if backbone_bf16:
+            self.model.backbone.to(memory_format=torch.channels_last)
 
     def node_features(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Backbone features of the valid nodes only (padding and masked objects are skipped, which also
         keeps them out of BatchNorm statistics); zeros elsewhere. Same values as ``model.embed``."""
         valid = batch["valid"].bool()
-        feats = self.model.backbone(node_tensor(batch["crops"][valid], batch["coords"][valid]))
+        x = node_tensor(batch["crops"][valid], batch["coords"][valid])
+        if self.backbone_bf16:
+            with torch.autocast(x.device.type, dtype=torch.bfloat16):
+                feats = self.model.backbone(x.contiguous(memory_format=torch.channels_last)).float()
+        else:
+            feats = self.model.backbone(x)
         h = feats.new_zeros((*valid.shape, feats.shape[-1]))
         h[valid] = feats
         return h

@@ -21,8 +21,10 @@ from pathlib import Path
 
 from stages.checkpoints import best_and_latest
 from stages.lightning_logs import lightning_progress, route_lightning_logs
+from stages.precision import BF16, FP32, resolve_precision
 from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
+from stages.relation.simulate import DetectionNoise, with_simulated_detections
 from stages.word_format import load_image, open_dataset
 
 WEIGHTS_FILE = "relation.pt"
@@ -92,16 +94,21 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     check_object_counts(ds.records, in_cfg.max_objects)  # every split: export uses the same padding
     cache_dir = out_dir / "inputs"
     min_box_px = float(rel.val_min_box_px)
-    train = split_inputs("train", _limit(ds.subset("train"), rel.train.limit_train_images), ds.root, in_cfg,
-                         priors, cache_dir, min_box_px)
+    noise = DetectionNoise.from_cfg(rel.train.get("detection_noise"))
+    train_records = with_simulated_detections(_limit(ds.subset("train"), rel.train.limit_train_images), noise,
+                                              int(rel.train.seed), in_cfg.max_objects)
+    train = split_inputs("train", train_records, ds.root, in_cfg, priors, cache_dir, min_box_px)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
                        cache_dir, min_box_px)
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
 
     plain = OmegaConf.to_container(rel, resolve=True)
+    precision = resolve_precision(tr.precision, tr.accelerator)
+    backbone_bf16 = precision == BF16  # the module autocasts its backbone itself; the rest trains in fp32
     module = RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
-                            optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)})
+                            optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
+                            backbone_bf16=backbone_bf16)
     augment = AugmentConfig.from_cfg(plain.get("augment"))
     data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment)
     ckpt_dir = out_dir / "checkpoints"
@@ -110,8 +117,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
                  history, *lightning_progress("relation")]
     logger = _tracking_logger()
+    if logger is not None:  # the precision this machine trained in, beside the configured "auto"
+        logger.log_hyperparams({"relation.precision": precision})
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
-                        strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=tr.precision,
+                        strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=FP32 if backbone_bf16 else precision,
                         logger=logger if logger is not None else False, callbacks=callbacks,
                         deterministic=True, default_root_dir=out_dir, log_every_n_steps=10,
                         enable_model_summary=False)
@@ -131,7 +140,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     torch.save(net.state_dict(), out_dir / WEIGHTS_FILE)
     metrics = {"relation.params": float(count_parameters(net)), "relation.size_mb": size_mb(net),
                "relation.epochs": float(len(history.rows)), "relation.train.images": float(len(train)),
-               "relation.train.seconds": time.perf_counter() - started}
+               "relation.train.seconds": time.perf_counter() - started, "relation.bf16": float(backbone_bf16)}
     metrics.update({f"relation.val.{k}": float(v) for k, v in val_metrics.items()})
     has_roles = bool((train.role >= 0).any())
     (out_dir / CONFIG_FILE).write_text(json.dumps({

@@ -52,6 +52,36 @@ def test_random_crops_keep_image_and_boxes_consistent(tmp_path, flip):
     assert int(item["mask"].sum()) == int((item["hm"] == 1).sum())  # one peak per kept object
 
 
+@pytest.mark.parametrize("crop", [[64, 32], None])
+def test_multi_scale_keeps_image_and_boxes_consistent(tmp_path, crop):
+    record = write_image(tmp_path)
+    augment = {"flip": 0.5, "brightness": 0.0, "contrast": 0.0, "saturation": 0.0, "scale": [0.6, 1.4],
+               "crop": crop, "crop_min_visible": 0.5}
+    dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=8, augment=augment)
+    torch.manual_seed(1)
+    sizes = set()
+    for _ in range(20):
+        image, xyxy, _ = dataset.augmented(*dataset.letterboxed(0))
+        assert image.shape == ((32, 64, 3) if crop else (64, 96, 3))  # cropped or padded to the training size
+        for x1, y1, x2, y2 in xyxy:
+            # the inner part of every box lies on its white square (edges blur when resized)
+            inner = image[int(np.ceil(y1)) + 1:int(y2) - 1, int(np.ceil(x1)) + 1:int(x2) - 1]
+            assert inner.size == 0 or inner.min() >= 250
+            sizes.add(round(float(x2 - x1), 1))
+    assert len(sizes) > 4  # the scale changed
+
+
+def test_sensor_effects_keep_the_image_shape_and_type():
+    from stages.detector.augment import sensor_effects
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (32, 48, 3), dtype=np.uint8)
+    out = sensor_effects(image, rng, blur=1.0, noise=1.0, jpeg=1.0, grayscale=1.0)
+    assert out.shape == image.shape and out.dtype == np.uint8 and not np.array_equal(out, image)
+    assert np.array_equal(out[..., 0], out[..., 1]) and np.array_equal(out[..., 1], out[..., 2])
+    assert sensor_effects(image, rng) is image  # every probability 0: untouched
+
+
 def test_evaluation_items_are_the_whole_letterboxed_image(tmp_path):
     record = write_image(tmp_path)
     dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=8, augment=None)

@@ -59,9 +59,13 @@ def test_empty_val_split_is_an_error(toy_dataset):
         DetectorDataModule(ds.root, ds.subset("train"), [], 128, 96, None, 4, 0, 0.7)
 
 
-def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
+@pytest.mark.parametrize("native_bf16", [True, False], ids=["bf16", "fp32-fallback"])
+def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path, monkeypatch, native_bf16):
+    from stages import precision
     from stages.detector.stage import run
 
+    # trainer.precision auto: bf16 with channels_last where the CPU has native bf16, fp32 NCHW elsewhere
+    monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: native_bf16)
     cfg = OmegaConf.create({"detector": detector_cfg(epochs=2, augment={"crop": [64, 64]}), "seed": 3,
                             "trainer": OmegaConf.load(CONF / "trainer" / "cpu.yaml")})
     cfg.trainer.threads = 1
@@ -75,6 +79,9 @@ def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path):
                 assert 0.0 <= metrics[f"detector.{split}.{kind}.{name}"] <= 100.0
                 assert 0.0 <= metrics[f"detector.{split}.{kind}_all.{name}"] <= 100.0
     assert json.loads((out / "metrics.json").read_text()) == metrics
+    assert metrics["detector.bf16"] == float(native_bf16) and metrics["detector.train_images_per_s"] > 0
+    if not native_bf16:
+        return  # the rest does not depend on the precision
     ds = open_dataset(toy_dataset)
     for split in ("val", "test"):
         preds = read_records(out / f"predictions_{split}.jsonl", root=ds.root, allow_empty=True)

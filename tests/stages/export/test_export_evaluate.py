@@ -15,6 +15,11 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
         gt = report["results"]["gt"]
         assert gt["deepword"][subset]["wheel_acc"] == metrics[f"export.relation.fp32.{subset}.wheel_acc"]
         assert gt["deepword_int8"][subset]["wheel_acc"] == metrics[f"export.relation.int8.{subset}.wheel_acc"]
+    # end to end first: the headline table (detected beside ground-truth boxes, the detector's operating
+    # point), then the detected-box tables before the ground-truth-box ones
+    md = (evaluated / "report.md").read_text()
+    assert md.index("## End to end") < md.index("## detected boxes") < md.index("## ground-truth boxes")
+    assert "Operating point" in md
 
 
 def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_ground_truth_boxes(upstream, tmp_path):

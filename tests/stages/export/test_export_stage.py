@@ -26,4 +26,10 @@ def test_stage_writes_checked_models_and_metrics(exported):
         metrics["export.relation.torch_ms_per_img_b1"] / metrics["export.relation.ms_per_img_b1"])
     bundle = json.loads((out / BUNDLE_FILE).read_text())
     assert bundle["metrics"] == pytest.approx(metrics)
+    # the operating point chosen on val ships with the detector, and is the best of the pairs it tried
+    op = bundle["detector"]["operating_point"]
+    assert set(op) == {"vehicle", "wheel"} and all(t in (0.1, 0.3, 0.5) for t in op.values())
+    assert metrics["export.detector.threshold.vehicle"] == op["vehicle"]
+    assert metrics["export.detector.operating_point_evaluations"] == 9
+    assert metrics["export.detector.val_pair_f1"] >= metrics["export.detector.val_pair_f1_at_score_threshold"]
     assert (out / "artifacts" / "latency.md").read_text().count("|") > 20

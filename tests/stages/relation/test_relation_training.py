@@ -167,7 +167,7 @@ def _stage_cfg(**train):
     rel.train.epochs, rel.train.batch_size = 2, 8
     rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
-                                "precision": "32-true", "threads": 1})
+                                "precision": "auto", "threads": 1})  # bf16 backbone where the CPU has it
     evaluation = OmegaConf.load("conf/eval/default.yaml")  # relation.val_min_box_px follows eval.min_box_px
     return OmegaConf.create({"relation": rel, "trainer": trainer, "seed": 0, "eval": evaluation})
 

@@ -1,0 +1,166 @@
+"""Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
+against bf16 autocast, channels_last, and both, in the same process on the same batches; and the relation
+network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
+against fp32.
+
+    python -m benchmarks.bench_detector_training [--threads 2] [--steps 6] [--batch 8]
+
+The network is the default config's CenterNet (conf/detector, tiny backbone), freshly initialised; the
+batch is the quick profile's training crop (320x256) with random images and real CenterNet targets.
+Variants are interleaved step by step (fp32, bf16, channels_last, both, fp32, ...) so that the load other
+processes put on a shared machine falls on all of them alike; the medians' ratios against fp32 are the
+figures to trust, the absolute rates depend on the load. bf16 is only timed where the CPU runs it natively
+(``stages.precision.cpu_has_native_bf16``): elsewhere emulated bf16 is slower and the stages train in fp32.
+The ratio is printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import statistics
+import time
+
+import numpy as np
+
+from benchmarks.bench_latency import default_configs
+
+
+def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) -> dict:
+    import torch
+
+    from stages.detector.model import CLASS_NAMES, DOWN_RATIO
+    from stages.detector.targets import centernet_targets
+
+    rng = np.random.default_rng(seed)
+    items = []
+    for _ in range(batch):
+        x1 = rng.uniform(0, width - 40, 12)
+        y1 = rng.uniform(0, height - 30, 12)
+        boxes = np.column_stack([x1, y1, x1 + rng.uniform(8, 40, 12), y1 + rng.uniform(8, 30, 12)])
+        items.append(centernet_targets(boxes / DOWN_RATIO, rng.integers(0, 2, 12), len(CLASS_NAMES),
+                                       width // DOWN_RATIO, height // DOWN_RATIO, 12, det["min_overlap"]))
+    out = {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
+    out["image"] = torch.from_numpy(rng.standard_normal((batch, 3, height, width)).astype(np.float32))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=6, help="timed steps per variant (after one warm-up)")
+    parser.add_argument("--batch", type=int, default=8)
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from stages.detector.losses import centernet_loss
+    from stages.detector.model import build_centernet, model_config
+    from stages.precision import cpu_has_native_bf16
+
+    torch.set_num_threads(args.threads)
+    _, det = default_configs()
+    width, height = 320, 256
+    batch = make_batch(det, args.batch, width, height)
+    native_bf16 = cpu_has_native_bf16()
+    variants = {"fp32": (False, False), "channels_last": (False, True)}
+    if native_bf16:
+        variants |= {"bf16": (True, False), "bf16 + channels_last": (True, True)}
+
+    state = {}
+    for name, (_, channels_last) in variants.items():
+        torch.manual_seed(0)
+        net = build_centernet(model_config(det)).train()
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        net = net.to(memory_format=fmt)
+        state[name] = (net, torch.optim.AdamW(net.parameters(), lr=1e-4), batch["image"].contiguous(memory_format=fmt))
+
+    def step(name: str) -> float:
+        bf16, _ = variants[name]
+        net, opt, images = state[name]
+        start = time.perf_counter()
+        autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+        with autocast:
+            loss, _ = centernet_loss(net(images), batch, **det["loss"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        return time.perf_counter() - start
+
+    times: dict[str, list[float]] = {name: [] for name in variants}
+    for name in variants:
+        step(name)  # warm-up: oneDNN primitive creation
+    for _ in range(args.steps):
+        for name in variants:
+            times[name].append(step(name))
+
+    print(f"CPU native bf16: {native_bf16}; threads {args.threads}; batch {args.batch} at {width}x{height}; "
+          f"median of {args.steps} interleaved steps")
+    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
+    fp32 = statistics.median(times["fp32"])
+    for name, ts in times.items():
+        median = statistics.median(ts)
+        print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
+    if not native_bf16:
+        print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
+        return
+    relation_step_ratio(args.steps)
+
+
+def relation_step_ratio(steps: int, images: int = 16) -> None:
+    """The relation stage's training step (default config, 16 images of the quick profile's object counts)
+    with the backbone in fp32 and in bf16, interleaved; prints graphs/s and the ratio."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from benchmarks.bench_latency import TEST_OBJECT_COUNTS, random_graphs
+    from stages.relation.inputs import InputConfig
+    from stages.relation.lightning import RelationModule, collate_graphs
+    from stages.relation.model import ModelConfig
+
+    rel, _ = default_configs()
+    cfg = OmegaConf.create(rel)
+    in_cfg, model_cfg = InputConfig.from_cfg(cfg), ModelConfig.from_cfg(cfg)
+    graphs = random_graphs(TEST_OBJECT_COUNTS[:images], in_cfg.input_size)
+    items = []
+    for g in graphs:
+        n = len(g.classes)
+        items.append({"crops": torch.from_numpy(g.crops), "coords": torch.from_numpy(g.coords),
+                      "classes": torch.from_numpy(g.classes).long(), "valid": torch.from_numpy(g.valid),
+                      "adj": torch.from_numpy(g.adj), "cand": torch.from_numpy(g.cand),
+                      "owner": torch.zeros((n, n), dtype=torch.uint8), "couple": torch.zeros((n, n), dtype=torch.uint8),
+                      "role": torch.full((n,), -1, dtype=torch.long)})
+    batch = collate_graphs(items)
+    modules = {}
+    for name, bf16 in (("fp32", False), ("bf16 backbone", True)):
+        torch.manual_seed(0)
+        module = RelationModule(model=dict(model_cfg.__dict__), loss=rel["loss"], decode=rel["decode"],
+                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=bf16).train()
+        modules[name] = (module, torch.optim.AdamW(module.parameters(), lr=1e-3))
+
+    def step(name: str) -> float:
+        module, opt = modules[name]
+        start = time.perf_counter()
+        loss = module._loss(module(batch), batch)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        return time.perf_counter() - start
+
+    times: dict[str, list[float]] = {name: [] for name in modules}
+    for name in modules:
+        step(name)
+    for _ in range(steps):
+        for name in modules:
+            times[name].append(step(name))
+    fp32 = statistics.median(times["fp32"])
+    print(f"\nrelation network ({model_cfg.backbone}, {in_cfg.input_size}x{in_cfg.input_size} crops), "
+          f"{images} images of {sum(len(g.classes) for g in graphs)} objects per step")
+    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
+    for name, ts in times.items():
+        median = statistics.median(ts)
+        print(f"{name:<22} {1000 * median:8.0f} {images / median:9.1f} {fp32 / median:7.2f}x")
+
+
+if __name__ == "__main__":
+    main()

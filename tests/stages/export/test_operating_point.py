@@ -1,0 +1,63 @@
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from stages.export.operating_point import choose_thresholds, end_to_end_pair_f1, keep_at
+from stages.geometry import containment
+from stages.word_format import Record
+
+
+def record(boxes, relations=()) -> Record:
+    return Record(image="images/front/000001.png", frame_id=1, camera="front", width=200, height=100,
+                  boxes=np.asarray(boxes, dtype=np.float64), relations=list(relations), wheel_pairs=[])
+
+
+# one vehicle with two wheels
+TRUTH = record([[10, 10, 110, 70, 1.0, 0, 0], [15, 50, 35, 70, 1.0, 1, 1], [85, 50, 105, 70, 1.0, 1, 2]],
+               [(0, 1, None), (0, 2, None)])
+# the vehicle and its wheels found (one wheel weakly), a weak false vehicle that holds the weak wheel more
+# tightly than the true one, and a weaker false wheel inside the true vehicle
+DETECTIONS = record([[10, 10, 110, 70, 0.9, 0, 0], [15, 50, 35, 70, 0.8, 1, 1], [85, 50, 105, 70, 0.35, 1, 2],
+                     [80, 40, 160, 75, 0.45, 0, 3], [50, 50, 70, 70, 0.25, 1, 4]])
+
+
+def tightest_vehicle(records: list[Record]) -> list[Record]:
+    """A stand-in relation model: each wheel to the smallest vehicle box that holds it."""
+    out = []
+    for rec in records:
+        vehicles, wheels = rec.boxes[rec.class_ids == 0], rec.boxes[rec.class_ids == 1]
+        relations = []
+        if len(vehicles):
+            held = containment(wheels[:, :4], vehicles[:, :4]) >= 0.99
+            area = (vehicles[:, 2] - vehicles[:, 0]) * (vehicles[:, 3] - vehicles[:, 1])
+            for w, row in zip(wheels, held, strict=True):
+                if row.any():
+                    v = vehicles[np.flatnonzero(row)[np.argmin(area[row])]]
+                    relations.append((int(v[6]), int(w[6]), None))
+        out.append(replace(rec, relations=relations))
+    return out
+
+
+def test_keep_at_applies_one_threshold_per_class_and_keeps_ids():
+    kept = keep_at(DETECTIONS, (0.5, 0.3))
+    assert kept.box_ids.tolist() == [0, 1, 2] and kept.relations == []
+
+
+def test_chosen_thresholds_maximise_val_pair_f1():
+    grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    chosen, seen = choose_thresholds([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
+    every = {t: end_to_end_pair_f1([TRUTH], [DETECTIONS], t, tightest_vehicle, 0.0, 0.5)
+             for t in itertools.product(grid, repeat=2)}
+    assert seen == pytest.approx(every)
+    assert every[chosen] == max(every.values()) == 100.0
+    # the false vehicle (0.45) must go and the weak true wheel (0.35) stay, the false wheel (0.25) go
+    assert chosen == (0.5, 0.3)
+    # keeping everything, as before the operating point, loses a wheel to the false vehicle and adds one
+    assert every[(0.1, 0.1)] < 70.0
+
+
+def test_empty_grid_is_an_error():
+    with pytest.raises(ValueError, match="grid is empty"):
+        choose_thresholds([TRUTH], [DETECTIONS], tightest_vehicle, 2, [])
