@@ -80,7 +80,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
-    from stages.lightning_logs import route_lightning_logs
+    from stages.lightning_logs import lightning_progress, route_lightning_logs
     from stages.precision import BF16, resolve_precision
     from stages.replicas import check_replicas_agree
 
@@ -112,7 +112,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
-        precision=precision, logger=loggers, callbacks=[checkpoint, latest],
+        precision=precision, logger=loggers, callbacks=[checkpoint, latest, *lightning_progress("detector")],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()
