@@ -184,21 +184,24 @@ def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Recor
 def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, progress: bool = True) -> list[Record]:
     """Generate ``cfg['frames']`` frames into ``out_dir`` (images/<camera>/<frame>.png); returns the records
     in frame, camera order. ``workers`` processes (default: all cores); 1 renders in this process."""
-    from tqdm import tqdm
+    from stages.progress import progress_lines
 
     DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
     n = int(cfg["frames"])
     workers = max(1, min(int(workers or os.cpu_count() or 1), n))
     frames = range(n)
-    bar = dict(total=n, desc="synword frames", unit="frame", disable=not progress)
+
+    def shown(items):
+        return progress_lines(items, total=n, desc="synword frames", unit="frame") if progress else items
+
     if workers == 1:
         gen = FrameGenerator(cfg, seed)
-        results = [write_frame(gen, f, out_dir) for f in tqdm(frames, **bar)]
+        results = [write_frame(gen, f, out_dir) for f in shown(frames)]
     else:
         ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
         with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg, seed, str(out_dir))) as pool:
             # a chunk of one rig's frames: each process builds a rig's tables once
             chunk = max(1, int(cfg["lens"]["frames_per_rig"]))
-            results = list(tqdm(pool.imap(_work, frames, chunksize=chunk), **bar))
+            results = list(shown(pool.imap(_work, frames, chunksize=chunk)))
     order = {c: i for i, c in enumerate(CAMERAS)}
     return sorted((r for recs in results for r in recs), key=lambda r: (r.frame_id, order[r.camera]))
