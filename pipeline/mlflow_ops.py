@@ -90,9 +90,15 @@ class MlflowOps:
         """Record a dataset as an input of the run (the UI's Dataset column): its ``digest`` identifies the
         content (MLflow keeps 36 characters of it), ``source`` says where it is."""
         from mlflow.entities import Dataset, DatasetInput
+        from mlflow.exceptions import MlflowException
 
         dataset = Dataset(name=name, digest=digest[:DATASET_DIGEST_CHARS], source_type="local", source=source)
-        self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
+        try:
+            self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
+        except MlflowException:
+            # Jobs of a sweep log the same dataset at once: MLflow looks the row up, then inserts it, so the
+            # later insert fails on the unique key. The row exists now; a second attempt links it to the run.
+            self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
