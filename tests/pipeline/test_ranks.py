@@ -43,7 +43,7 @@ def run(cfg, inputs, out_dir):
     calls, launch = os.environ["BETA_CALLS"], os.environ["PIPELINE_LAUNCH_ID"]
     with open(calls, "a") as f:
         f.write(f"{os.environ['RANK']} {inputs['a']} {out_dir} {launch}\\n")
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + float(os.environ.get("BETA_BARRIER_S", "60"))
     while sum(launch in line for line in open(calls)) < 2:
         if time.monotonic() > deadline:
             raise RuntimeError("the other rank never joined stage b")
@@ -71,18 +71,19 @@ def test_a_malformed_rank_variable_is_named():
         current_rank({"RANK": "one", "WORLD_SIZE": "2"})
 
 
-def _start_rank(toy, cfg, rank: int, launch_id: str, name: str) -> subprocess.Popen:
+def _start_rank(toy, cfg, rank: int, launch_id: str, name: str, barrier_s: float) -> subprocess.Popen:
     cfg_path = toy.root / f"{name}.yaml"
     OmegaConf.save(cfg, cfg_path)
     env = {**os.environ, "PYTHONPATH": f"{toy.root}{os.pathsep}{REPO}", "RANK": str(rank), "WORLD_SIZE": "2",
-           LAUNCH_ID_VARIABLE: launch_id, "BETA_CALLS": str(toy.root / "beta_calls.txt")}
+           LAUNCH_ID_VARIABLE: launch_id, "BETA_CALLS": str(toy.root / "beta_calls.txt"), "BETA_BARRIER_S": str(barrier_s)}
     return subprocess.Popen([sys.executable, "-c", RUNNER, str(cfg_path), str(toy.root / name)], cwd=toy.root,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def _launch(toy, cfg, name: str, cfg_rank1=None) -> tuple[subprocess.Popen, str, subprocess.Popen, str]:
+def _launch(toy, cfg, name: str, cfg_rank1=None, barrier_s: float = 60) -> tuple[subprocess.Popen, str, subprocess.Popen, str]:
     launch_id = f"test-{uuid.uuid4().hex[:8]}"
-    procs = [_start_rank(toy, cfg if r == 0 else (cfg_rank1 or cfg), r, launch_id, f"{name}_rank{r}") for r in (0, 1)]
+    procs = [_start_rank(toy, cfg if r == 0 else (cfg_rank1 or cfg), r, launch_id, f"{name}_rank{r}", barrier_s)
+             for r in (0, 1)]
     (out0, _), (out1, _) = (p.communicate(timeout=120) for p in procs)
     return procs[0], out0, procs[1], out1
 
@@ -149,6 +150,7 @@ def test_a_failing_rank_zero_stops_the_other_rank_with_its_error(toy):
 def test_ranks_with_different_configs_refuse_to_train_together(toy):
     cfg = _every_rank_toy(toy)
     other = OmegaConf.merge(cfg, {"beta": {"offset": 11}})
-    rank0, out0, rank1, out1 = _launch(toy, cfg, "mismatch", cfg_rank1=other)
+    # rank 1 leaves, so rank 0's stage b waits for it in vain (a DDP fit would until its timeout): briefly here
+    rank0, out0, rank1, out1 = _launch(toy, cfg, "mismatch", cfg_rank1=other, barrier_s=1)
     assert rank1.returncode != 0 and "rank 0 planned other cache keys for stage(s) ['b']" in out1
     assert "different code or config" in out1
