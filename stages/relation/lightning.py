@@ -1,5 +1,5 @@
 """Lightning wrappers of the relation network: dataset and data module over cached split inputs, and the
-training module (weighted L2 loss and owner ranking, decoding, metrics). The network itself is ``model.RelationNet``."""
+training module (decoding, metrics). The network itself is ``model.RelationNet``, its losses ``losses``."""
 
 from __future__ import annotations
 
@@ -10,14 +10,13 @@ from torchmetrics import Metric
 
 from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
-    allowed_owners,
     decode_couples,
     decode_owners,
     metrics_from_counts,
     relation_counts,
-    type_masks,
 )
 from stages.relation.inputs import SplitInputs, node_tensor
+from stages.relation.losses import relation_loss
 from stages.relation.model import ModelConfig, RelationNet
 
 COUNT_KEYS = ("wheels", "wheels_correct", "images", "images_correct", "pair_tp", "pair_fp", "pair_fn",
@@ -113,57 +112,6 @@ class RelationCounts(Metric):
 
     def compute(self) -> dict[str, float]:
         return metrics_from_counts({k: float(getattr(self, k)) for k in COUNT_KEYS})
-
-
-def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, pos_weight: float,
-                neg_weight: float) -> torch.Tensor:
-    """pos_weight x mean over masked true pairs of (s - 1)^2 + neg_weight x mean over masked non-pairs of
-    s^2. Averaging each class on its own keeps the many non-pairs (a wheel has one owner among all
-    vehicles of a hard image) from drowning the positives, which otherwise stalls training at s = 0."""
-    m = mask.to(scores.dtype)
-    pos = target.to(scores.dtype) * m
-    neg = m - pos
-    pos_term = (pos * (scores - 1.0) ** 2).sum() / pos.sum().clamp_min(1.0)
-    neg_term = (neg * scores**2).sum() / neg.sum().clamp_min(1.0)
-    return pos_weight * pos_term + neg_weight * neg_term
-
-
-RANK_TEMPERATURE = 0.1  # cosines span [-1, 1]: /0.1 lets the softmax approach one-hot
-
-
-def owner_ranking(scores: torch.Tensor, target: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
-    """Mean cross-entropy, over wheels whose owner is among their allowed vehicles, of a softmax of the
-    wheel's ownership scores over those vehicles. The one-owner decode keeps each wheel's best vehicle,
-    a ranking the L2 loss trains only indirectly (it pulls every score to 0 or 1 on its own): a wheel
-    inside two vehicle boxes is scored right by L2 on average while its two vehicles swap places."""
-    logits = torch.where(allowed, scores / RANK_TEMPERATURE, torch.full_like(scores, -1e4))
-    positive = target.bool() & allowed
-    has_owner = positive.any(dim=-1)
-    log_p = torch.log_softmax(logits, dim=-1)
-    nll = -(log_p * positive.to(scores.dtype)).sum(dim=-1)
-    return (nll * has_owner.to(scores.dtype)).sum() / has_owner.sum().clamp_min(1)
-
-
-def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
-                  role_weight: float, rank_weight: float = 0.0, min_containment: float = 0.0) -> dict[str, torch.Tensor]:
-    """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE,
-    plus (``rank_weight`` > 0) the owner ranking over the vehicles the decode may choose (``min_containment``)."""
-    owner_scores, couple_scores, front = outputs
-    wv, ww = type_masks(batch["classes"])
-    cand = batch["cand"].bool()
-    owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
-    rank = owner.new_zeros(())
-    if rank_weight > 0:
-        allowed = allowed_owners(batch["classes"], cand, batch["coords"], min_containment)
-        rank = owner_ranking(owner_scores, batch["owner"], allowed)
-    couple = weighted_l2(couple_scores, batch["couple"], ww & cand, pos_weight, neg_weight)
-    known = ((batch["role"] >= 0) & batch["valid"].bool()).to(front.dtype)
-    target = batch["role"].clamp_min(0).to(front.dtype)
-    p = front.clamp(1e-6, 1 - 1e-6)
-    bce = -(target * torch.log(p) + (1 - target) * torch.log(1 - p))  # lets a NaN through to the loss check
-    role = (bce * known).sum() / known.sum().clamp_min(1.0)
-    return {"loss": owner + couple + role_weight * role + rank_weight * rank, "owner": owner, "couple": couple,
-            "role": role, "rank": rank}
 
 
 class RelationModule(L.LightningModule):

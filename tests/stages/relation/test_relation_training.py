@@ -17,9 +17,9 @@ from stages.relation.lightning import (
     RelationDataModule,
     RelationModule,
     collate_graphs,
-    owner_ranking,
     score_split,
 )
+from stages.relation.losses import owner_ranking
 from stages.relation.model import ModelConfig
 from tests.stages.relation import relation_data as rd
 
