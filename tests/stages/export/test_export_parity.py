@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from stages.export.onnx_export import FoldedBackbone, export_detector, export_relation, relation_example
-from stages.export.parity import ParityError, ParityReport, detector_parity, relation_parity
+from stages.export.parity import ParityError, ParityReport, compare_detector, detector_parity, relation_parity
 from stages.inference.decode import decode_couples, decode_owners
 from stages.inference.runtime import RELATION_OUTPUTS, ort_session
 from stages.relation import decode as torch_decode
@@ -188,3 +188,17 @@ def test_numpy_decoding_equals_the_training_decoding(one_owner, min_containment)
         assert numpy_owners.sum() < decode_owners(scores, classes, cand, 0.2, one_owner).sum()
     np.testing.assert_array_equal(decode_couples(scores, classes, cand, 0.2),
                                   torch_decode.decode_couples(*t, 0.2).numpy())
+
+
+def test_detector_parity_is_relative_for_pixel_sizes_and_absolute_for_heatmap_and_offsets():
+    heat = np.full((1, 2, 4, 4), 0.5, np.float32)
+    size = np.full((1, 2, 4, 4), 120.0, np.float32)   # box sizes in pixels
+    offset = np.full((1, 2, 4, 4), 0.25, np.float32)
+    rounding = ParityReport()  # float32 rounding of a 120 px size: 2e-4 px, 1.7e-6 relative
+    compare_detector(rounding, [heat, size, offset], [heat, size + 2e-4, offset], 0.3)
+    assert rounding.max_abs_diff < 1e-5
+    rounding.check("detector", 1e-4, 99.9)
+    drifted = ParityReport()  # the same 2e-4 on the heatmap is a real difference
+    compare_detector(drifted, [heat, size, offset], [heat + 2e-4, size, offset], 0.3)
+    with pytest.raises(ParityError, match="max \\|diff\\|"):
+        drifted.check("detector", 1e-4, 99.9)
