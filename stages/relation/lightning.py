@@ -3,11 +3,14 @@ training module (decoding, metrics). The network itself is ``model.RelationNet``
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import lightning as L
 import torch
 from torch.utils.data import DataLoader, Dataset
 from torchmetrics import Metric
 
+from stages.metrics import Counts
 from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
     decode_couples,
@@ -19,8 +22,7 @@ from stages.relation.inputs import SplitInputs, node_tensor
 from stages.relation.losses import relation_loss
 from stages.relation.model import ModelConfig, RelationNet
 
-COUNT_KEYS = ("wheels", "wheels_correct", "images", "images_correct", "pair_tp", "pair_fp", "pair_fn",
-              "couple_tp", "couple_fp", "couple_fn")
+COUNT_KEYS = tuple(f.name for f in fields(Counts))  # the §7 counts, summed across batches (and ranks)
 
 
 PAD_VALUES = {"classes": -1, "role": -1}  # padded nodes: no class, no role; every other field 0

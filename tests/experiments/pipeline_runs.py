@@ -150,3 +150,22 @@ class MlflowServer:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
         self.log.close()
+
+
+def relation_runs_of_a_ddp_launch(run_dir: Path, uri: str, one_parent_why: str) -> tuple[dict, list]:
+    """The checks every multi-process launch of ``pipeline.until=relation`` on the shared smoke entries
+    shares: data and priors hit, the relation trained its 2 epochs, and one parent run alone tracked the
+    launch. Returns the relation stage's summary entry and the experiment's runs."""
+    import json
+
+    from mlflow.tracking import MlflowClient
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["stages"]["data"]["hit"] and summary["stages"]["priors"]["hit"]
+    relation = summary["stages"]["relation"]
+    assert not relation["hit"] and relation["metrics"]["relation.epochs"] == 2
+    client = MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(parents) == 1, one_parent_why
+    return relation, runs

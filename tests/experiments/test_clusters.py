@@ -5,7 +5,6 @@ PostgreSQL tracking server in test_tracking_server.py."""
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from packaging.requirements import Requirement
 
-from tests.experiments.pipeline_runs import CONF, REPO, TINY
+from tests.experiments.pipeline_runs import CONF, REPO, TINY, relation_runs_of_a_ddp_launch
 
 
 def _pinned(package: str) -> str:
@@ -57,7 +56,6 @@ def test_torchrun_two_ranks_train_relation_with_ddp_and_rank_zero_alone_records_
     """What `srun` does on a SLURM allocation, on one machine: torchrun starts the pipeline twice (gloo, CPU).
     Data and priors are the shared smoke run's entries; the relation network trains on both ranks."""
     import torch
-    from mlflow.tracking import MlflowClient
 
     from tests.sqlite_store import fresh_store
 
@@ -80,16 +78,9 @@ def test_torchrun_two_ranks_train_relation_with_ddp_and_rank_zero_alone_records_
     # every rank checked its weights against the others' (a difference fails the stage)
     assert "relation: the 2 ranks hold identical weights" in log
 
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert summary["stages"]["data"]["hit"] and summary["stages"]["priors"]["hit"]
-    relation = summary["stages"]["relation"]
-    assert not relation["hit"] and relation["metrics"]["relation.epochs"] == 2
-
-    client = MlflowClient(uri)
-    runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
-    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
-    assert len(parents) == 1, "only rank 0 tracks"
-    assert sorted(r.info.run_name for r in runs if r not in parents) == ["data", "priors", "relation"]
+    relation, runs = relation_runs_of_a_ddp_launch(tmp_path / "run", uri, "only rank 0 tracks")
+    assert sorted(r.info.run_name for r in runs if "mlflow.parentRunId" in r.data.tags) == ["data", "priors",
+                                                                                              "relation"]
 
     # Rank 0 alone wrote the cache: the new entry, its lock and latest.json; no half-written or launch files.
     new = sorted(str(p.relative_to(cache)) for p in cache.rglob("*") if p not in before)
