@@ -6,7 +6,8 @@ against fp32.
     python -m benchmarks.bench_detector_training [--threads 2] [--steps 6] [--batch 8]
 
 The network is the default config's CenterNet (conf/detector, tiny backbone), freshly initialised; the
-batch is the quick profile's training crop (320x256) with random images and real CenterNet targets.
+batch is the quick profile's training crop (320x256) with random images and real targets of the configured
+box regression (``detector.regression``).
 Variants are interleaved step by step (fp32, bf16, channels_last, both, fp32, ...) so that the load other
 processes put on a shared machine falls on all of them alike; the medians' ratios against fp32 are the
 figures to trust, the absolute rates depend on the load. bf16 is only timed where the CPU runs it natively
@@ -30,7 +31,7 @@ def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) ->
     import torch
 
     from stages.detector.model import CLASS_NAMES, DOWN_RATIO
-    from stages.detector.targets import centernet_targets
+    from stages.detector.targets import centernet_targets, ttfnet_box_targets
 
     rng = np.random.default_rng(seed)
     items = []
@@ -38,8 +39,11 @@ def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) ->
         x1 = rng.uniform(0, width - 40, 12)
         y1 = rng.uniform(0, height - 30, 12)
         boxes = np.column_stack([x1, y1, x1 + rng.uniform(8, 40, 12), y1 + rng.uniform(8, 30, 12)])
-        items.append(centernet_targets(boxes / DOWN_RATIO, rng.integers(0, 2, 12), len(CLASS_NAMES),
-                                       width // DOWN_RATIO, height // DOWN_RATIO, 12, det["min_overlap"]))
+        item = centernet_targets(boxes / DOWN_RATIO, rng.integers(0, 2, 12), len(CLASS_NAMES),
+                                 width // DOWN_RATIO, height // DOWN_RATIO, 12, det["min_overlap"])
+        if det["regression"] == "ttfnet":
+            item |= ttfnet_box_targets(boxes, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
+        items.append(item)
     out = {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
     out["image"] = torch.from_numpy(rng.standard_normal((batch, 3, height, width)).astype(np.float32))
     return out
@@ -54,8 +58,8 @@ def main(argv: list[str] | None = None) -> None:
 
     import torch
 
-    from stages.detector.losses import centernet_loss
-    from stages.detector.model import build_centernet, model_config
+    from stages.detector.losses import detector_loss
+    from stages.detector.model import DOWN_RATIO, build_centernet, model_config
     from stages.precision import cpu_has_native_bf16
 
     torch.set_num_threads(args.threads)
@@ -81,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
         start = time.perf_counter()
         autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
         with autocast:
-            loss, _ = centernet_loss(net(images), batch, **det["loss"])
+            loss, _ = detector_loss(net(images), batch, det["regression"], DOWN_RATIO, det["loss"])
         opt.zero_grad()
         loss.backward()
         opt.step()

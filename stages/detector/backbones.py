@@ -77,16 +77,24 @@ class ResNet18Deconv(nn.Module):
 
 
 class TinyBackbone(nn.Module):
-    """Stem (stride 2) + one basic block per further stride-2 stage (``channels[1:]``, strides 4, 8, ...), then
+    """Stem (stride 2) + ``blocks`` basic blocks (default one) per further stride-2 stage (``channels[1:]``,
+    strides 4, 8, ...), then
     a top-down path (nearest upsampling, 1x1 lateral, 3x3 smoothing) back to stride 4. Five channel widths
     reach stride 32, whose receptive field covers the nearest vehicles (half the image wide)."""
 
-    def __init__(self, channels: tuple[int, ...] = (16, 32, 64, 128, 256), out_channels: int = 32):
+    def __init__(self, channels: tuple[int, ...] = (16, 32, 64, 128, 256), out_channels: int = 32,
+                 blocks: tuple[int, ...] | None = None):
         super().__init__()
         if len(channels) < 3:
             raise ValueError(f"detector.backbone.channels: need at least 3 widths (stem, stride 4, stride 8), got {channels}")
+        blocks = tuple(blocks) if blocks is not None else (1,) * (len(channels) - 1)
+        if len(blocks) != len(channels) - 1 or min(blocks) < 1:
+            raise ValueError(f"detector.backbone.blocks: need one count >= 1 per stage after the stem "
+                             f"({len(channels) - 1} for channels {list(channels)}), got {list(blocks)}")
         self.stem = conv_bn_relu(3, channels[0], stride=2)
-        self.stages = nn.ModuleList(BasicBlock(a, b, stride=2) for a, b in zip(channels[:-1], channels[1:], strict=True))
+        # a single block stays a bare BasicBlock: the weight names of models saved before ``blocks`` existed
+        self.stages = nn.ModuleList(BasicBlock(a, b, stride=2) if n == 1 else resnet_layer(a, b, n, stride=2)
+                                    for a, b, n in zip(channels[:-1], channels[1:], blocks, strict=True))
         self.laterals = nn.ModuleList(nn.Conv2d(c, out_channels, 1) for c in channels[1:])
         self.smooths = nn.ModuleList(conv_bn_relu(out_channels, out_channels) for _ in channels[2:])
         self.out_channels = out_channels
@@ -107,7 +115,7 @@ def build_backbone(cfg: dict) -> nn.Module:
     """A backbone from its config (``detector.backbone``): ``{name: tiny|resnet18, ...}``."""
     name = cfg["name"]
     if name == "tiny":
-        return TinyBackbone(tuple(cfg["channels"]), int(cfg["out_channels"]))
+        return TinyBackbone(tuple(cfg["channels"]), int(cfg["out_channels"]), cfg.get("blocks"))
     if name == "resnet18":
         return ResNet18Deconv(tuple(cfg["deconv_channels"]))
     raise ValueError(f"detector.backbone.name: unknown backbone {name!r} (have 'tiny', 'resnet18')")

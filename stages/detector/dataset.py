@@ -28,7 +28,7 @@ from stages.detector.augment import (
 )
 from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image, normalise
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
-from stages.detector.targets import centernet_targets
+from stages.detector.targets import centernet_targets, ttfnet_box_targets
 from stages.word_format import Record, load_image
 
 
@@ -54,13 +54,14 @@ def crop_boxes(xyxy: np.ndarray, x0: int, y0: int, width: int, height: int,
 
 
 class CenterNetDataset(Dataset):
-    """Items: ``image`` (3, H, W) float, targets ``hm wh reg ind mask`` (see ``centernet_targets``) and
-    ``index`` of the record. ``augment`` (flip probability, jitter strengths, optional ``crop`` [w, h] and
+    """Items: ``image`` (3, H, W) float, targets ``hm wh reg ind mask`` (see ``centernet_targets``), with
+    ``regression="ttfnet"`` also ``box box_weight`` (``ttfnet_box_targets``), and ``index`` of the record. ``augment`` (flip probability, jitter strengths, optional ``crop`` [w, h] and
     ``crop_min_visible``) or None for evaluation (the whole letterboxed image, no crop)."""
 
     def __init__(self, root: str | Path, records: list[Record], input_width: int, input_height: int,
-                 max_objects: int, augment: dict | None = None, min_overlap: float = 0.7):
-        self.root, self.records = Path(root), records
+                 max_objects: int, augment: dict | None = None, min_overlap: float = 0.7,
+                 regression: str = "centernet"):
+        self.root, self.records, self.regression = Path(root), records, regression
         self.input_width, self.input_height = input_width, input_height
         self.max_objects, self.augment, self.min_overlap = max_objects, augment, min_overlap
         self.crop = tuple(augment["crop"]) if augment and augment.get("crop") else None
@@ -120,6 +121,8 @@ class CenterNetDataset(Dataset):
         height, width = image.shape[:2]
         targets = centernet_targets(xyxy / DOWN_RATIO, classes, len(CLASS_NAMES), width // DOWN_RATIO,
                                     height // DOWN_RATIO, self.max_objects, self.min_overlap)
+        if self.regression == "ttfnet":
+            targets |= ttfnet_box_targets(xyxy, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
         item = {k: torch.from_numpy(v) for k, v in targets.items()}
         item["image"] = torch.from_numpy(normalise(image))
         item["index"] = torch.tensor(index)

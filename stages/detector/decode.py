@@ -1,4 +1,5 @@
-"""Decoding CenterNet outputs into boxes: 3x3 max-pool peak extraction and top-K (``ctdet_decode``).
+"""Decoding detector outputs into boxes: 3x3 max-pool peak extraction and top-K, then each peak's box from
+CenterNet's size and offset maps (``ctdet_decode``) or TTFNet's side distances (``ttfnet_decode``).
 
 Pure tensor operations with no data-dependent shapes or Python loops over the batch, so the decoder
 exports to ONNX together with the network (dynamic batch, fixed K).
@@ -42,3 +43,23 @@ def ctdet_decode(heat: torch.Tensor, wh: torch.Tensor, reg: torch.Tensor, k: int
     half_w, half_h = size[..., 0] / 2, size[..., 1] / 2
     boxes = torch.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], dim=-1) * down_ratio
     return torch.cat([boxes, scores.unsqueeze(-1), classes.to(heat.dtype).unsqueeze(-1)], dim=-1)
+
+
+def ttfnet_decode(heat: torch.Tensor, ltrb: torch.Tensor, k: int = 100, down_ratio: int = 4) -> torch.Tensor:
+    """(B, C, H, W) heatmap probabilities and (B, 4, H, W) distances from each cell centre to the box sides
+    (input pixels) -> (B, k, 6) detections ``x1, y1, x2, y2, score, class`` in network-input pixels."""
+    k = min(k, heat.shape[1] * heat.shape[2] * heat.shape[3])
+    scores, cell, classes, ys, xs = topk(nms_heatmap(heat), k)
+    d = gather_feat(ltrb, cell)
+    cx = (xs.to(heat.dtype) + 0.5) * down_ratio
+    cy = (ys.to(heat.dtype) + 0.5) * down_ratio
+    boxes = torch.stack([cx - d[..., 0], cy - d[..., 1], cx + d[..., 2], cy + d[..., 3]], dim=-1)
+    return torch.cat([boxes, scores.unsqueeze(-1), classes.to(heat.dtype).unsqueeze(-1)], dim=-1)
+
+
+def decode_outputs(outputs: tuple[torch.Tensor, ...], k: int = 100, down_ratio: int = 4) -> torch.Tensor:
+    """The decoder of whichever heads produced ``outputs``: three maps (heatmap, size, offset) are
+    CenterNet's, two (heatmap, side distances) TTFNet's."""
+    if len(outputs) == 3:
+        return ctdet_decode(*outputs, k=k, down_ratio=down_ratio)
+    return ttfnet_decode(*outputs, k=k, down_ratio=down_ratio)

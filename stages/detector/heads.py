@@ -1,4 +1,6 @@
-"""CenterNet's output heads: Conv3x3 -> ReLU -> Conv1x1 for the class heatmap, box size and offset."""
+"""The detector's output heads, each Conv3x3 -> ReLU -> Conv1x1: the class heatmap, then the box regression of
+``detector.regression``: CenterNet's box size and centre offset at the centre cell, or TTFNet's distances
+from each cell's centre to the four sides of its box."""
 
 from __future__ import annotations
 
@@ -10,6 +12,13 @@ from torch import nn
 HEATMAP_BIAS = -2.19
 # Clamp of the heatmap sigmoid, as CenterNet's ``_sigmoid``: keeps log(p) and log(1 - p) finite.
 HEATMAP_EPS = 1e-4
+# TTFNet's ``wh_offset_base``: the distance head's output is ReLU(x) times this many input pixels, so its raw
+# outputs stay near 1 for boxes from a few pixels to a few hundred.
+LTRB_BASE = 16.0
+# Initial distance bias: ReLU(1) x 16 = 16 px to each side, a 32 px box; with a zero bias half the cells would
+# start in ReLU's flat half and never learn.
+LTRB_BIAS = 1.0
+REGRESSIONS = ("centernet", "ttfnet")
 
 
 def head(c_in: int, head_conv: int, c_out: int) -> nn.Sequential:
@@ -17,20 +26,34 @@ def head(c_in: int, head_conv: int, c_out: int) -> nn.Sequential:
 
 
 class CenterNetHeads(nn.Module):
-    """Heatmap (one channel per class, clamped sigmoid), size (w, h) and offset (dx, dy) maps."""
+    """Heatmap (one channel per class, clamped sigmoid) and the regression maps: ``centernet``: size (w, h)
+    in output cells and offset (dx, dy); ``ttfnet``: one map of distances (left, top, right, bottom) in input
+    pixels."""
 
-    def __init__(self, c_in: int, head_conv: int, num_classes: int):
+    def __init__(self, c_in: int, head_conv: int, num_classes: int, regression: str = "centernet"):
         super().__init__()
+        if regression not in REGRESSIONS:
+            raise ValueError(f"detector.regression: unknown {regression!r} (have {', '.join(REGRESSIONS)})")
+        self.regression = regression
         self.hm = head(c_in, head_conv, num_classes)
-        self.wh = head(c_in, head_conv, 2)
-        self.reg = head(c_in, head_conv, 2)
         nn.init.constant_(self.hm[-1].bias, HEATMAP_BIAS)
-        for branch in (self.wh, self.reg):
+        if regression == "centernet":
+            self.wh = head(c_in, head_conv, 2)
+            self.reg = head(c_in, head_conv, 2)
+            branches = (self.wh, self.reg)
+        else:
+            self.ltrb = head(c_in, head_conv, 4)
+            branches = (self.ltrb,)
+        for branch in branches:
             nn.init.normal_(branch[-1].weight, std=0.001)
             nn.init.zeros_(branch[-1].bias)
+        if regression == "ttfnet":
+            nn.init.constant_(self.ltrb[-1].bias, LTRB_BIAS)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         # In fp32 even under bf16 autocast: bf16 rounds 1 - 1e-4 to 1 (log(1 - p) = -inf in the focal loss),
         # and its 8-bit mantissa would put decoded box corners ~2 input pixels off.
         heat = torch.clamp(torch.sigmoid(self.hm(x).float()), HEATMAP_EPS, 1 - HEATMAP_EPS)
-        return heat, self.wh(x).float(), self.reg(x).float()
+        if self.regression == "centernet":
+            return heat, self.wh(x).float(), self.reg(x).float()
+        return heat, torch.relu(self.ltrb(x).float()) * LTRB_BASE

@@ -11,9 +11,9 @@ import torch
 from torch.utils.data import DataLoader
 
 from stages.detector.dataset import CenterNetDataset, max_objects_of
-from stages.detector.decode import ctdet_decode
+from stages.detector.decode import decode_outputs
 from stages.detector.letterbox import letterbox_for
-from stages.detector.losses import centernet_loss
+from stages.detector.losses import detector_loss
 from stages.detector.metrics import coco_average_precision
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO, build_centernet
 from stages.detector.predict import detections_to_record
@@ -49,6 +49,7 @@ class CenterNetModule(L.LightningModule):
         self.k = int(model_cfg["max_detections"])
         self.input_size = (int(model_cfg["input_width"]), int(model_cfg["input_height"]))
         self.loss_weights, self.optim_cfg, self.score_threshold = loss, optimizer, score_threshold
+        self.regression = self.net.heads.regression
         self.ap_min_box_px = ap_min_box_px
         self._val_detections: list[torch.Tensor] = []
         self._val_indices: list[torch.Tensor] = []
@@ -56,8 +57,11 @@ class CenterNetModule(L.LightningModule):
     def forward(self, images: torch.Tensor):
         return self.net(images.contiguous(memory_format=self.memory_format))
 
+    def loss(self, outputs, batch):
+        return detector_loss(outputs, batch, self.regression, DOWN_RATIO, self.loss_weights)
+
     def training_step(self, batch, batch_idx):
-        total, parts = centernet_loss(self(batch["image"]), batch, **self.loss_weights)
+        total, parts = self.loss(self(batch["image"]), batch)
         check_finite_loss(total, parts, self.current_epoch, self.global_step)
         bs = batch["image"].shape[0]
         self.log("train/loss", total, prog_bar=True, on_step=True, on_epoch=True, batch_size=bs)
@@ -66,9 +70,9 @@ class CenterNetModule(L.LightningModule):
 
     def validation_step(self, batch, batch_idx):
         outputs = self(batch["image"])
-        total, _ = centernet_loss(outputs, batch, **self.loss_weights)
+        total, _ = self.loss(outputs, batch)
         self.log("val/loss", total, prog_bar=True, batch_size=batch["image"].shape[0], sync_dist=True)
-        self._val_detections.append(ctdet_decode(*outputs, k=self.k, down_ratio=DOWN_RATIO))
+        self._val_detections.append(decode_outputs(outputs, k=self.k, down_ratio=DOWN_RATIO))
         self._val_indices.append(batch["index"])
 
     def on_validation_epoch_end(self):
@@ -109,10 +113,12 @@ class CenterNetModule(L.LightningModule):
 
 
 class DetectorDataModule(L.LightningDataModule):
-    """Train (augmented, shuffled) and val (plain) loaders over WORD records of one dataset root."""
+    """Train (augmented, shuffled) and val (plain) loaders over WORD records of one dataset root, with the
+    targets of the model's box ``regression`` (``model_config(...)["regression"]``)."""
 
     def __init__(self, root: str | Path, train: list[Record], val: list[Record], input_width: int,
-                 input_height: int, augment: dict, batch_size: int, num_workers: int, min_overlap: float):
+                 input_height: int, augment: dict, batch_size: int, num_workers: int, min_overlap: float,
+                 regression: str):
         super().__init__()
         if not train:
             raise ValueError("detector: the dataset's train split is empty")
@@ -120,7 +126,7 @@ class DetectorDataModule(L.LightningDataModule):
             raise ValueError("detector: the dataset's val split is empty (needed to pick the best checkpoint)")
         max_objects = max_objects_of(train + val)
         size = dict(input_width=input_width, input_height=input_height, max_objects=max_objects,
-                    min_overlap=min_overlap)
+                    min_overlap=min_overlap, regression=regression)
         self.train_set = CenterNetDataset(root, train, augment=augment, **size)
         self.val_set = CenterNetDataset(root, val, augment=None, **size)
         self.batch_size, self.num_workers = batch_size, num_workers

@@ -11,7 +11,7 @@ import torch
 from torch import nn
 
 from stages.detector.backbones import build_backbone
-from stages.detector.decode import ctdet_decode
+from stages.detector.decode import decode_outputs
 from stages.detector.heads import CenterNetHeads
 from stages.detector.letterbox import MEAN, STD
 
@@ -22,14 +22,16 @@ CONFIG_FILE = "model.json"
 
 
 class CenterNet(nn.Module):
-    """Image batch (B, 3, H, W) -> (heatmap probabilities (B, C, H/4, W/4), sizes (B, 2, ..), offsets (B, 2, ..))."""
+    """Image batch (B, 3, H, W) -> (heatmap probabilities (B, C, H/4, W/4), regression maps): sizes (B, 2, ..) and
+    offsets (B, 2, ..) for ``regression="centernet"``, side distances (B, 4, ..) for ``"ttfnet"``."""
 
-    def __init__(self, backbone: nn.Module, head_conv: int, num_classes: int = len(CLASS_NAMES)):
+    def __init__(self, backbone: nn.Module, head_conv: int, num_classes: int = len(CLASS_NAMES),
+                 regression: str = "centernet"):
         super().__init__()
         self.backbone = backbone
-        self.heads = CenterNetHeads(backbone.out_channels, head_conv, num_classes)
+        self.heads = CenterNetHeads(backbone.out_channels, head_conv, num_classes, regression)
 
-    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, ...]:
         return self.heads(self.backbone(images))
 
 
@@ -42,7 +44,7 @@ class CenterNetWithDecode(nn.Module):
         self.net, self.k = net, k
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        return ctdet_decode(*self.net(images), k=self.k, down_ratio=DOWN_RATIO)
+        return decode_outputs(self.net(images), k=self.k, down_ratio=DOWN_RATIO)
 
 
 def model_config(detector_cfg: dict) -> dict:
@@ -51,6 +53,7 @@ def model_config(detector_cfg: dict) -> dict:
     return {
         "backbone": backbone,
         "head_conv": int(backbone["head_conv"]),
+        "regression": str(detector_cfg.get("regression", "centernet")),
         "class_names": list(CLASS_NAMES),
         "input_width": int(detector_cfg["input_width"]),
         "input_height": int(detector_cfg["input_height"]),
@@ -70,7 +73,9 @@ def build_centernet(config: dict) -> CenterNet:
         if int(config[key]) % multiple:
             raise ValueError(f"detector.{key}={config[key]} must be divisible by {multiple} "
                              f"for backbone {config['backbone']['name']!r}")
-    return CenterNet(backbone, int(config["head_conv"]), len(config["class_names"]))
+    # a model.json written before the regression choice existed is CenterNet's
+    return CenterNet(backbone, int(config["head_conv"]), len(config["class_names"]),
+                     config.get("regression", "centernet"))
 
 
 def save_detector(out_dir: Path, net: CenterNet, config: dict) -> None:

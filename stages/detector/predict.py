@@ -35,7 +35,7 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
     """Detect on every record's image (letterboxed to the input size) and return one prediction per record."""
     import torch
 
-    from stages.detector.decode import ctdet_decode
+    from stages.detector.decode import decode_outputs
     from stages.detector.model import DOWN_RATIO
 
     net.eval()
@@ -46,6 +46,6 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
         inputs, boxes = zip(*(preprocess(load_image(root, r), input_width, input_height) for r in chunk), strict=True)
         x = torch.from_numpy(np.stack(inputs)).to(device)
         with torch.no_grad():
-            detections = ctdet_decode(*net(x), k=k, down_ratio=DOWN_RATIO).cpu().numpy()
+            detections = decode_outputs(net(x), k=k, down_ratio=DOWN_RATIO).cpu().numpy()
         out += [detections_to_record(d, r, b, score_threshold) for d, r, b in zip(detections, chunk, boxes, strict=True)]
     return out

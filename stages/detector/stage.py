@@ -7,6 +7,7 @@ Outputs (paths relative to the stage directory):
   checkpoints/                    Lightning checkpoints (best.ckpt, last.ckpt)
   logs/metrics.csv                training curves (also in the stage's MLflow run when tracked)
   artifacts/detections_test.png   detections drawn on test images; artifacts/curves.png
+  artifacts/misses_test.md        recall by box size, occlusion and border truncation (stages/detector/misses.py)
   metrics.json                    the metrics returned to the engine
 """
 
@@ -77,6 +78,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.checkpoints import best_and_latest
     from stages.detector.curves import plot_curves
     from stages.detector.lightning import CenterNetModule, DetectorDataModule
+    from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
     from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
@@ -102,7 +104,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
                              channels_last)
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
-                              det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"])
+                              det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"],
+                              mcfg["regression"])
     checkpoint, latest = best_and_latest(out_dir / "checkpoints", "val/ap50", "max")
     loggers = _loggers(out_dir)
     for logger in loggers:  # the precision this machine trained in, beside the configured "auto"
@@ -142,6 +145,9 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         metrics |= ap_metrics(preds, splits[split], split, det["ap_min_box_px"])
 
     artifacts = out_dir / "artifacts"
+    misses = recall_breakdown(splits["test"], predictions["test"], mcfg["class_names"], det["render_min_score"])
+    write_breakdown(artifacts / "misses_test.md", misses, det["render_min_score"], "test")
+    metrics |= breakdown_metrics(misses, "test")
     shown = slice(0, det["render_images"])
     write_detection_grid(artifacts / "detections_test.png", dataset.root, predictions["test"][shown],
                          splits["test"][shown], min_score=det["render_min_score"])

@@ -1,4 +1,5 @@
-"""CenterNet training targets: Gaussian centre heatmaps, sizes, sub-pixel offsets and their indices.
+"""Detector training targets: CenterNet's Gaussian centre heatmaps, sizes, sub-pixel offsets and their
+indices (``centernet_targets``), and TTFNet's Gaussian-weighted box targets (``ttfnet_box_targets``).
 
 Radius rule, chosen deliberately: ``gaussian_radius`` is CenterNet's released rule (inherited from
 CornerNet), *including* its known root quirk (xingyizhou/CenterNet issues #116, #273): each quadratic's
@@ -88,3 +89,56 @@ def centernet_targets(xyxy: np.ndarray, classes: np.ndarray, num_classes: int, o
         ind[k] = cell[1] * out_width + cell[0]
         mask[k] = 1
     return {"hm": hm, "wh": wh, "reg": reg, "ind": ind, "mask": mask}
+
+
+# TTFNet's beta: the share of a box's width and height, about its centre, whose cells regress the box.
+TTFNET_BETA = 0.54
+
+
+def elliptic_gaussian(radius_x: int, radius_y: int) -> np.ndarray:
+    """A (2 ry + 1) x (2 rx + 1) Gaussian with peak 1 and sigma = diameter / 6 along each axis."""
+    sx, sy = (2 * radius_x + 1) / 6, (2 * radius_y + 1) / 6
+    y, x = np.ogrid[-radius_y:radius_y + 1, -radius_x:radius_x + 1]
+    g = np.exp(-(x * x) / (2 * sx * sx) - (y * y) / (2 * sy * sy))
+    g[g < np.finfo(g.dtype).eps * g.max()] = 0
+    return g
+
+
+def ttfnet_box_targets(xyxy: np.ndarray, out_width: int, out_height: int, down_ratio: int,
+                       beta: float = TTFNET_BETA) -> dict[str, np.ndarray]:
+    """TTFNet's box regression targets (Liu et al., AAAI 2020) for one image; ``xyxy`` in input pixels.
+
+    Every output cell in the central ``beta`` share of a box (an elliptical Gaussian of the box's aspect)
+    regresses that box, not only its centre cell as in CenterNet: a large vehicle gives dozens of
+    training samples per image instead of one. Each cell's weight is its Gaussian value, normalised
+    over the object and scaled by log(box area in input pixels), so a big box's many cells count about
+    as much as a small box's few. Where boxes overlap the smaller one wins (drawn last), as in TTFNet.
+
+    Returns ``box`` (4, H, W): the target box (x1, y1, x2, y2) in input pixels at each sample cell, and
+    ``box_weight`` (H, W): 0 where a cell regresses nothing.
+    """
+    box = np.zeros((4, out_height, out_width), dtype=np.float32)
+    weight = np.zeros((out_height, out_width), dtype=np.float32)
+    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4).copy()
+    xyxy[:, [0, 2]] = xyxy[:, [0, 2]].clip(0, out_width * down_ratio - 1e-3)
+    xyxy[:, [1, 3]] = xyxy[:, [1, 3]].clip(0, out_height * down_ratio - 1e-3)
+    sides = xyxy[:, 2:] - xyxy[:, :2]
+    areas = sides[:, 0] * sides[:, 1]
+    for k in np.argsort(-areas, kind="stable"):
+        w, h = sides[k]
+        if w <= 0 or h <= 0:
+            continue
+        cx = int((xyxy[k, 0] + xyxy[k, 2]) / 2 / down_ratio)
+        cy = int((xyxy[k, 1] + xyxy[k, 3]) / 2 / down_ratio)
+        rx, ry = int(beta * w / down_ratio / 2), int(beta * h / down_ratio / 2)
+        g = elliptic_gaussian(rx, ry)
+        left, right = min(cx, rx), min(out_width - cx, rx + 1)
+        top, bottom = min(cy, ry), min(out_height - cy, ry + 1)
+        g = g[ry - top:ry + bottom, rx - left:rx + right]
+        inside = g > 0
+        if not inside.any():
+            continue
+        window = (slice(cy - top, cy + bottom), slice(cx - left, cx + right))
+        box[(slice(None), *window)][:, inside] = xyxy[k, :, None]
+        weight[window][inside] = g[inside] / g[inside].sum() * np.log(max(areas[k], 1.0 + 1e-6))
+    return {"box": box, "box_weight": weight}

@@ -206,11 +206,11 @@ class DetectorGraph(nn.Module):
         self.net, self.k = net, k
 
     def forward(self, images):
-        from stages.detector.decode import ctdet_decode
+        from stages.detector.decode import decode_outputs
         from stages.detector.model import DOWN_RATIO
 
-        heat, wh, reg = self.net(images)
-        return heat, wh, reg, ctdet_decode(heat, wh, reg, k=self.k, down_ratio=DOWN_RATIO)
+        heads = self.net(images)
+        return *heads, decode_outputs(heads, k=self.k, down_ratio=DOWN_RATIO)
 
 
 def name_object_dims(model):
@@ -267,6 +267,7 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
 
 def export_detector(net: nn.Module, path: Path, input_width: int, input_height: int, k: int) -> Path:
     example = (torch.zeros((2, 3, input_height, input_width)),)
-    axes = {DETECTOR_INPUT: {0: "batch"}, **{name: {0: "batch"} for name in DETECTOR_OUTPUTS}}
-    return _export(DetectorGraph(net, k), example, path, (DETECTOR_INPUT,), DETECTOR_OUTPUTS, axes)
+    outputs = DETECTOR_OUTPUTS[net.heads.regression]
+    axes = {DETECTOR_INPUT: {0: "batch"}, **{name: {0: "batch"} for name in outputs}}
+    return _export(DetectorGraph(net, k), example, path, (DETECTOR_INPUT,), outputs, axes)
 

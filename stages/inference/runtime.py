@@ -35,7 +35,8 @@ DETECTOR_FILE = "detector.onnx"
 RELATION_INPUTS = ("crops", "coords", "adj", "cand")
 RELATION_OUTPUTS = ("owner", "couple", "front")
 DETECTOR_INPUT = "images"
-DETECTOR_OUTPUTS = ("heatmap", "wh", "reg", "detections")
+# the detector graph's outputs by its box regression (detector.regression); the runtime reads "detections"
+DETECTOR_OUTPUTS = {"centernet": ("heatmap", "wh", "reg", "detections"), "ttfnet": ("heatmap", "ltrb", "detections")}
 # Which relation model a method name runs (evaluate rows and ``deepword infer --method``).
 METHOD_VARIANTS = {"deepword": "dynamic", "deepword_int8": "int8"}
 

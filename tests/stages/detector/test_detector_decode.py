@@ -1,9 +1,9 @@
 import numpy as np
 import torch
 
-from stages.detector.decode import ctdet_decode, nms_heatmap
+from stages.detector.decode import ctdet_decode, decode_outputs, nms_heatmap, ttfnet_decode
 from stages.detector.heads import HEATMAP_EPS
-from stages.detector.targets import centernet_targets
+from stages.detector.targets import centernet_targets, ttfnet_box_targets
 
 
 def dense_maps(targets: dict, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -48,3 +48,31 @@ def test_decode_is_batched_and_sorted():
     assert out.shape == (3, 5, 6)
     assert torch.all(out[:, :-1, 4] >= out[:, 1:, 4])
     assert torch.allclose(out[..., 2] - out[..., 0], torch.full((3, 5), 4.0))  # 1 cell wide at stride 4
+
+
+def perfect_ltrb(box_targets: dict) -> torch.Tensor:
+    """What a perfect TTFNet head would output: at every sample cell, the distances from the cell centre to
+    its target box's sides (elsewhere 0)."""
+    box, weight = box_targets["box"], box_targets["box_weight"]
+    h, w = weight.shape
+    cx, cy = (np.arange(w) + 0.5) * 4, (np.arange(h) + 0.5)[:, None] * 4
+    ltrb = np.stack([cx - box[0], cy - box[1], box[2] - cx, box[3] - cy]) * (weight > 0)
+    return torch.from_numpy(ltrb[None].astype(np.float32))
+
+
+def test_ttfnet_decoding_of_rendered_targets_returns_the_boxes():
+    boxes = np.array([[40.0, 30.0, 140.0, 90.0], [150.0, 20.0, 230.0, 70.0],
+                      [50.0, 78.0, 66.0, 94.0], [118.0, 77.5, 133.0, 93.0], [200.0, 60.0, 212.0, 71.0]])
+    classes = np.array([0, 0, 1, 1, 1])
+    w, h = 64, 32
+    t = centernet_targets(boxes / 4, classes, num_classes=2, out_width=w, out_height=h, max_objects=8)
+    heat = torch.from_numpy(np.clip(t["hm"], HEATMAP_EPS, 1 - HEATMAP_EPS)[None])
+    detections = ttfnet_decode(heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4)), k=10, down_ratio=4)[0].numpy()
+    found = detections[detections[:, 4] > 0.5]
+    assert len(found) == len(boxes)
+    for box, cls in zip(boxes, classes, strict=True):
+        match = found[np.abs(found[:, :4] - box).max(axis=1) < 1e-3]
+        assert len(match) == 1 and match[0, 5] == cls
+    # decode_outputs tells the two regressions apart by their maps
+    assert torch.equal(decode_outputs((heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4))), k=10),
+                       ttfnet_decode(heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4)), k=10))

@@ -8,10 +8,10 @@ TINY = {"name": "tiny", "channels": [8, 8, 16, 16], "out_channels": 16, "head_co
 RESNET18 = {"name": "resnet18", "deconv_channels": [256, 256, 256], "head_conv": 64}
 
 
-def config(backbone: dict, width: int = 64, height: int = 32) -> dict:
+def config(backbone: dict, width: int = 64, height: int = 32, regression: str = "centernet") -> dict:
     return {"backbone": backbone, "head_conv": backbone["head_conv"], "class_names": ["vehicle", "wheel"],
             "input_width": width, "input_height": height, "down_ratio": 4, "max_detections": 7,
-            "score_threshold": 0.1}
+            "score_threshold": 0.1, "regression": regression}
 
 
 @pytest.mark.parametrize("backbone", [TINY, RESNET18], ids=["tiny", "resnet18"])
@@ -62,3 +62,31 @@ def test_save_load_round_trip_and_decoding_wrapper(tmp_path):
             assert torch.equal(a, b)
         detections = CenterNetWithDecode(loaded, k=cfg["max_detections"])(x)
     assert detections.shape == (3, 7, 6)
+
+
+def test_ttfnet_heads_give_non_negative_side_distances_and_old_configs_load_as_centernet(tmp_path):
+    net = build_centernet(config(TINY, regression="ttfnet")).eval()
+    with torch.no_grad():
+        heat, ltrb = net(torch.randn(2, 3, 32, 64))
+    assert heat.shape == (2, 2, 8, 16) and ltrb.shape == (2, 4, 8, 16)
+    # ReLU x 16 px from a bias of 1: an untrained network starts with 32 px boxes, none negative
+    assert ltrb.min() >= 0 and ltrb.mean().item() == pytest.approx(16.0, rel=0.1)
+    assert CenterNetWithDecode(net, k=5)(torch.randn(1, 3, 32, 64)).shape == (1, 5, 6)
+    old = config(TINY)
+    del old["regression"]   # a model.json written before the choice existed
+    save_detector(tmp_path, build_centernet(old), old)
+    assert len(load_detector(tmp_path)[0](torch.randn(1, 3, 32, 64))) == 3
+    with pytest.raises(ValueError, match="detector.regression"):
+        build_centernet(config(TINY, regression="fcos"))
+
+
+def test_tiny_backbone_blocks_per_stride():
+    deeper = dict(TINY, blocks=[1, 2, 2])
+    net = build_centernet(config(deeper)).eval()
+    assert [len(stage) if isinstance(stage, torch.nn.Sequential) else 1 for stage in net.backbone.stages] == [1, 2, 2]
+    with torch.no_grad():
+        assert net(torch.randn(1, 3, 32, 64))[0].shape == (1, 2, 8, 16)
+    # one block per stride keeps the weight names of models saved before `blocks` existed
+    assert set(build_centernet(config(dict(TINY, blocks=[1, 1, 1]))).state_dict()) == set(build_centernet(config(TINY)).state_dict())
+    with pytest.raises(ValueError, match="detector.backbone.blocks"):
+        build_centernet(config(dict(TINY, blocks=[1, 2])))

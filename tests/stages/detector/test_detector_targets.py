@@ -3,7 +3,14 @@ import math
 import numpy as np
 import pytest
 
-from stages.detector.targets import centernet_targets, draw_gaussian, gaussian2d, gaussian_radius
+from stages.detector.targets import (
+    TTFNET_BETA,
+    centernet_targets,
+    draw_gaussian,
+    gaussian2d,
+    gaussian_radius,
+    ttfnet_box_targets,
+)
 
 
 def test_gaussian_radius_known_values():
@@ -44,3 +51,28 @@ def test_centernet_targets_indices_sizes_offsets():
     assert t["hm"][1].max() == 1.0 and t["hm"][0, 1, 11] < 1.0  # classes drawn on their own channel
     with pytest.raises(ValueError, match="max_objects"):
         centernet_targets(boxes, np.array([0, 1]), 2, 16, 8, max_objects=1)
+
+
+def test_ttfnet_box_targets_sample_the_central_share_of_each_box():
+    # stride 4, a 64 x 32 px box centred on cell (8, 6) and a 12 x 12 px one on cell (3, 2), apart
+    boxes = np.array([[2.0, 10.0, 66.0, 42.0], [8.0, 4.0, 20.0, 16.0]])
+    t = ttfnet_box_targets(boxes, out_width=20, out_height=12, down_ratio=4)
+    weight, box = t["box_weight"], t["box"]
+    ys, xs = np.nonzero(weight)
+    big = np.all(box[:, ys, xs].T == boxes[0], axis=1)
+    # the big box's cells: within beta x its half-sides of its centre cell (16 x 8 cells -> radii 4 x 2)
+    assert np.abs(xs[big] - 8).max() == int(TTFNET_BETA * 16 / 2) and np.abs(ys[big] - 6).max() == int(TTFNET_BETA * 8 / 2)
+    # each object's weights sum to log(its area): big and small boxes count alike, not by their cell counts
+    assert weight[ys[big], xs[big]].sum() == pytest.approx(math.log(64 * 32), rel=1e-5)
+    assert weight[ys[~big], xs[~big]].sum() == pytest.approx(math.log(12 * 12), rel=1e-5)
+    assert (~big).sum() == 1 and big.sum() > 20   # a 3-cell box regresses from its centre cell only
+    assert weight[6, 8] == weight[ys[big], xs[big]].max()   # the centre weighs most
+
+
+def test_ttfnet_box_targets_smaller_box_wins_overlaps_and_boxes_are_clipped():
+    boxes = np.array([[0.0, 0.0, 80.0, 48.0], [28.0, 16.0, 52.0, 32.0], [70.0, -8.0, 100.0, 20.0]])
+    t = ttfnet_box_targets(boxes, out_width=20, out_height=12, down_ratio=4)
+    assert np.allclose(t["box"][:, 6, 10], [28.0, 16.0, 52.0, 32.0])   # the small box's centre cell
+    ys, xs = np.nonzero(t["box_weight"])
+    targets = t["box"][:, ys, xs]
+    assert targets[1].min() >= 0 and targets[2].max() <= 80   # the third box clipped to the 80 x 48 input

@@ -36,7 +36,7 @@ def test_fast_dev_run(toy_dataset, tmp_path):
     ds = open_dataset(toy_dataset)
     module = CenterNetModule(model_config(det), det["loss"], det["optimizer"], det["score_threshold"])
     data = DetectorDataModule(ds.root, ds.subset("train"), ds.subset("val"), det["input_width"], det["input_height"],
-                              det["augment"], det["batch_size"], 0, det["min_overlap"])
+                              det["augment"], det["batch_size"], 0, det["min_overlap"], det["regression"])
     batch = next(iter(data.train_dataloader()))
     assert batch["image"].shape == (4, 3, 96, 128) and batch["hm"].shape == (4, 2, 24, 32)
     assert batch["mask"].sum() >= 4 * 3  # every toy image has a vehicle and two wheels
@@ -56,7 +56,7 @@ def test_non_finite_loss_stops_with_a_clear_message():
 def test_empty_val_split_is_an_error(toy_dataset):
     ds = open_dataset(toy_dataset)
     with pytest.raises(ValueError, match="val split is empty"):
-        DetectorDataModule(ds.root, ds.subset("train"), [], 128, 96, None, 4, 0, 0.7)
+        DetectorDataModule(ds.root, ds.subset("train"), [], 128, 96, None, 4, 0, 0.7, "ttfnet")
 
 
 @pytest.mark.parametrize("native_bf16", [True, False], ids=["bf16", "fp32-fallback"])

@@ -194,11 +194,12 @@ def test_detector_parity_is_relative_for_pixel_sizes_and_absolute_for_heatmap_an
     heat = np.full((1, 2, 4, 4), 0.5, np.float32)
     size = np.full((1, 2, 4, 4), 120.0, np.float32)   # box sizes in pixels
     offset = np.full((1, 2, 4, 4), 0.25, np.float32)
+    detections = np.zeros((1, 5, 6), np.float32)  # the decoded output: not compared (top-K order may differ)
     rounding = ParityReport()  # float32 rounding of a 120 px size: 2e-4 px, 1.7e-6 relative
-    compare_detector(rounding, [heat, size, offset], [heat, size + 2e-4, offset], 0.3)
+    compare_detector(rounding, [heat, size, offset, detections], [heat, size + 2e-4, offset, detections + 1], 0.3)
     assert rounding.max_abs_diff < 1e-5
     rounding.check("detector", 1e-4, 99.9)
     drifted = ParityReport()  # the same 2e-4 on the heatmap is a real difference
-    compare_detector(drifted, [heat, size, offset], [heat + 2e-4, size, offset], 0.3)
+    compare_detector(drifted, [heat, size, offset, detections], [heat + 2e-4, size, offset, detections], 0.3)
     with pytest.raises(ParityError, match="max \\|diff\\|"):
         drifted.check("detector", 1e-4, 99.9)
