@@ -26,7 +26,7 @@ from stages.detector.augment import (
     rescale,
     sensor_effects,
 )
-from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image, normalise
+from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
 from stages.detector.targets import centernet_targets, ttfnet_box_targets
 from stages.word_format import Record, load_image
@@ -54,7 +54,7 @@ def crop_boxes(xyxy: np.ndarray, x0: int, y0: int, width: int, height: int,
 
 
 class CenterNetDataset(Dataset):
-    """Items: ``image`` (3, H, W) float, targets ``hm wh reg ind mask`` (see ``centernet_targets``), with
+    """Items: ``image`` (H, W, 3) uint8 RGB (``lightning.batch_to_input`` makes the network input), targets ``hm wh reg ind mask`` (see ``centernet_targets``), with
     ``regression="ttfnet"`` also ``box box_weight`` (``ttfnet_box_targets``), and ``index`` of the record. ``augment`` (flip probability, jitter strengths, optional ``crop`` [w, h] and
     ``crop_min_visible``) or None for evaluation (the whole letterboxed image, no crop)."""
 
@@ -124,6 +124,8 @@ class CenterNetDataset(Dataset):
         if self.regression == "ttfnet":
             targets |= ttfnet_box_targets(xyxy, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
         item = {k: torch.from_numpy(v) for k, v in targets.items()}
-        item["image"] = torch.from_numpy(normalise(image))
+        # uint8 HWC: normalised on the whole batch in torch (``lightning.batch_to_input``), a quarter of the
+        # per-image loader time on the training process when done here in numpy
+        item["image"] = torch.from_numpy(np.ascontiguousarray(image))
         item["index"] = torch.tensor(index)
         return item

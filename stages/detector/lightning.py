@@ -12,7 +12,7 @@ from torch.utils.data import DataLoader
 
 from stages.detector.dataset import CenterNetDataset, max_objects_of
 from stages.detector.decode import decode_outputs
-from stages.detector.letterbox import letterbox_for
+from stages.detector.letterbox import MEAN, STD, letterbox_for
 from stages.detector.losses import detector_loss
 from stages.detector.metrics import coco_average_precision
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO, build_centernet
@@ -30,6 +30,15 @@ def check_finite_loss(total: torch.Tensor, parts: dict[str, torch.Tensor], epoch
         detail = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
         raise NonFiniteLossError(f"detector: non-finite training loss {float(total)} at epoch {epoch}, step {step} "
                                  f"({detail}); lower detector.optimizer.lr or check the input boxes")
+
+
+def batch_to_input(images: torch.Tensor, memory_format=torch.contiguous_format) -> torch.Tensor:
+    """(B, H, W, 3) uint8 RGB batch -> (B, 3, H, W) float network input, ImageNet-normalised as
+    ``letterbox.normalise`` does per image. The permuted NHWC batch already has channels_last strides."""
+    mean = torch.as_tensor(MEAN, device=images.device).view(1, 3, 1, 1)
+    std = torch.as_tensor(STD, device=images.device).view(1, 3, 1, 1)
+    x = images.permute(0, 3, 1, 2).to(torch.float32) / 255.0
+    return ((x - mean) / std).contiguous(memory_format=memory_format)
 
 
 class CenterNetModule(L.LightningModule):
@@ -61,7 +70,7 @@ class CenterNetModule(L.LightningModule):
         return detector_loss(outputs, batch, self.regression, DOWN_RATIO, self.loss_weights)
 
     def training_step(self, batch, batch_idx):
-        total, parts = self.loss(self(batch["image"]), batch)
+        total, parts = self.loss(self(batch_to_input(batch["image"], self.memory_format)), batch)
         check_finite_loss(total, parts, self.current_epoch, self.global_step)
         bs = batch["image"].shape[0]
         self.log("train/loss", total, prog_bar=True, on_step=True, on_epoch=True, batch_size=bs)
@@ -69,7 +78,7 @@ class CenterNetModule(L.LightningModule):
         return total
 
     def validation_step(self, batch, batch_idx):
-        outputs = self(batch["image"])
+        outputs = self(batch_to_input(batch["image"], self.memory_format))
         total, _ = self.loss(outputs, batch)
         self.log("val/loss", total, prog_bar=True, batch_size=batch["image"].shape[0], sync_dist=True)
         self._val_detections.append(decode_outputs(outputs, k=self.k, down_ratio=DOWN_RATIO))

@@ -48,7 +48,7 @@ def test_random_crops_keep_image_and_boxes_consistent(tmp_path, flip):
         seen.add(len(xyxy))
     assert len(seen) > 1  # the crops moved
     item = dataset[0]
-    assert item["image"].shape == (3, 32, 64) and item["hm"].shape == (2, 8, 16)
+    assert item["image"].shape == (32, 64, 3) and item["image"].dtype == torch.uint8 and item["hm"].shape == (2, 8, 16)
     assert int(item["mask"].sum()) == int((item["hm"] == 1).sum())  # one peak per kept object
 
 
@@ -86,7 +86,7 @@ def test_evaluation_items_are_the_whole_letterboxed_image(tmp_path):
     record = write_image(tmp_path)
     dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=8, augment=None)
     item = dataset[0]
-    assert item["image"].shape == (3, 64, 96) and int(item["mask"].sum()) == 4
+    assert item["image"].shape == (64, 96, 3) and int(item["mask"].sum()) == 4
     assert dataset.letterboxed(0)[0] is dataset.letterboxed(0)[0]  # decoded once, then cached
     with pytest.raises(ValueError, match="larger than the input size"):
         CenterNetDataset(tmp_path, [record], 96, 64, 8, augment={"crop": [128, 32]})

@@ -25,7 +25,7 @@ def detector_cfg(**overrides) -> dict:
     cfg.backbone = OmegaConf.load(CONF / "detector" / "backbone" / "tiny.yaml")
     cfg.merge_with({"input_width": 128, "input_height": 96, "batch_size": 4, "epochs": 1, "render_images": 2,
                     "ap_min_box_px": 7,  # ignores the toy's smallest (6 px) wheels
-                    "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "out_channels": 16,
+                    "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "blocks": [1, 1, 1], "out_channels": 16,
                                                          "head_conv": 16}})
     cfg.merge_with(overrides)
     return OmegaConf.to_container(cfg, resolve=True)
@@ -38,7 +38,7 @@ def test_fast_dev_run(toy_dataset, tmp_path):
     data = DetectorDataModule(ds.root, ds.subset("train"), ds.subset("val"), det["input_width"], det["input_height"],
                               det["augment"], det["batch_size"], 0, det["min_overlap"], det["regression"])
     batch = next(iter(data.train_dataloader()))
-    assert batch["image"].shape == (4, 3, 96, 128) and batch["hm"].shape == (4, 2, 24, 32)
+    assert batch["image"].shape == (4, 96, 128, 3) and batch["hm"].shape == (4, 2, 24, 32)
     assert batch["mask"].sum() >= 4 * 3  # every toy image has a vehicle and two wheels
     trainer = L.Trainer(fast_dev_run=True, accelerator="cpu", logger=False, enable_progress_bar=False,
                         default_root_dir=tmp_path)
@@ -104,3 +104,13 @@ def test_crops_must_fit_the_backbone_strides(toy_dataset, tmp_path):
     cfg = OmegaConf.create({"detector": detector_cfg(augment={"crop": [72, 64]}), "seed": 3, "trainer": {"threads": 1}})
     with pytest.raises(ValueError, match=r"detector.augment.crop=\[72, 64\] must be divisible by 16"):
         run(cfg, {"data": toy_dataset}, tmp_path)
+
+
+def test_batch_normalisation_in_torch_equals_the_per_image_numpy_one():
+    from stages.detector.letterbox import normalise
+    from stages.detector.lightning import batch_to_input
+
+    images = np.random.default_rng(0).integers(0, 256, (3, 16, 24, 3), dtype=np.uint8)
+    x = batch_to_input(torch.from_numpy(images), torch.channels_last)
+    assert x.shape == (3, 3, 16, 24) and x.is_contiguous(memory_format=torch.channels_last)
+    np.testing.assert_allclose(x.numpy(), np.stack([normalise(im) for im in images]), atol=1e-6)
