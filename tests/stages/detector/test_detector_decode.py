@@ -18,20 +18,25 @@ def dense_maps(targets: dict, width: int, height: int) -> tuple[torch.Tensor, to
     return as_tensor(heat), as_tensor(wh), as_tensor(reg)
 
 
-def test_decoding_rendered_targets_returns_the_boxes():
-    # input-pixel boxes of two vehicles and three wheels (one wheel inside a vehicle box), stride 4
-    boxes = np.array([[40.0, 30.0, 140.0, 90.0], [150.0, 20.0, 230.0, 70.0],
-                      [50.0, 78.0, 66.0, 94.0], [118.0, 77.5, 133.0, 93.0], [200.0, 60.0, 212.0, 71.0]])
-    classes = np.array([0, 0, 1, 1, 1])
-    w, h = 64, 32
-    t = centernet_targets(boxes / 4, classes, num_classes=2, out_width=w, out_height=h, max_objects=8)
-    detections = ctdet_decode(*dense_maps(t, w, h), k=10, down_ratio=4)[0].numpy()
+# input-pixel boxes of two vehicles and three wheels (one wheel inside a vehicle box), stride 4, 64 x 32 cells
+BOXES = np.array([[40.0, 30.0, 140.0, 90.0], [150.0, 20.0, 230.0, 70.0],
+                  [50.0, 78.0, 66.0, 94.0], [118.0, 77.5, 133.0, 93.0], [200.0, 60.0, 212.0, 71.0]])
+CLASSES = np.array([0, 0, 1, 1, 1])
+W, H = 64, 32
+
+
+def assert_finds_every_box_once(detections: np.ndarray) -> None:
     found = detections[detections[:, 4] > 0.5]
-    assert len(found) == len(boxes)
-    for box, cls in zip(boxes, classes, strict=True):
+    assert len(found) == len(BOXES)
+    for box, cls in zip(BOXES, CLASSES, strict=True):
         match = found[np.abs(found[:, :4] - box).max(axis=1) < 1e-3]
         assert len(match) == 1 and match[0, 5] == cls
-    assert np.all(detections[5:, 4] < 0.5)  # the rest are Gaussian shoulders or background
+    assert np.all(detections[len(BOXES):, 4] < 0.5)  # the rest are Gaussian shoulders or background
+
+
+def test_decoding_rendered_targets_returns_the_boxes():
+    t = centernet_targets(BOXES / 4, CLASSES, num_classes=2, out_width=W, out_height=H, max_objects=8)
+    assert_finds_every_box_once(ctdet_decode(*dense_maps(t, W, H), k=10, down_ratio=4)[0].numpy())
 
 
 def test_nms_keeps_only_local_maxima():
@@ -61,18 +66,10 @@ def perfect_ltrb(box_targets: dict) -> torch.Tensor:
 
 
 def test_ttfnet_decoding_of_rendered_targets_returns_the_boxes():
-    boxes = np.array([[40.0, 30.0, 140.0, 90.0], [150.0, 20.0, 230.0, 70.0],
-                      [50.0, 78.0, 66.0, 94.0], [118.0, 77.5, 133.0, 93.0], [200.0, 60.0, 212.0, 71.0]])
-    classes = np.array([0, 0, 1, 1, 1])
-    w, h = 64, 32
-    t = centernet_targets(boxes / 4, classes, num_classes=2, out_width=w, out_height=h, max_objects=8)
+    t = centernet_targets(BOXES / 4, CLASSES, num_classes=2, out_width=W, out_height=H, max_objects=8)
     heat = torch.from_numpy(np.clip(t["hm"], HEATMAP_EPS, 1 - HEATMAP_EPS)[None])
-    detections = ttfnet_decode(heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4)), k=10, down_ratio=4)[0].numpy()
-    found = detections[detections[:, 4] > 0.5]
-    assert len(found) == len(boxes)
-    for box, cls in zip(boxes, classes, strict=True):
-        match = found[np.abs(found[:, :4] - box).max(axis=1) < 1e-3]
-        assert len(match) == 1 and match[0, 5] == cls
+    ltrb = perfect_ltrb(ttfnet_box_targets(BOXES, W, H, 4))
+    detections = ttfnet_decode(heat, ltrb, k=10, down_ratio=4)
+    assert_finds_every_box_once(detections[0].numpy())
     # decode_outputs tells the two regressions apart by their maps
-    assert torch.equal(decode_outputs((heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4))), k=10),
-                       ttfnet_decode(heat, perfect_ltrb(ttfnet_box_targets(boxes, w, h, 4)), k=10))
+    assert torch.equal(decode_outputs((heat, ltrb), k=10), detections)
