@@ -7,9 +7,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from stages.relation.inputs import InputConfig
 from stages.relation.lightning import GraphDataset
 from stages.relation.warp import BoxWarpConfig, radial_warp, random_box_warp, warp_boxes
-from stages.relation.inputs import InputConfig
 from tests.stages.relation.relation_data import records, split
 
 CONF = Path(__file__).resolve().parents[3] / "conf" / "relation" / "default.yaml"
