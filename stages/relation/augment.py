@@ -35,12 +35,15 @@ class AugmentConfig:
     jpeg_prob: float = 0.0
     jpeg_quality: tuple[int, int] = (30, 90)
     scale: tuple[float, float] = (1.0, 1.0)          # zoom about the crop centre (> 1: closer)
+    stretch: float = 0.0               # anisotropic zoom: x by e^u, y by e^-u, u in +- this (a lens's local stretch)
     drop_pixels: float = 0.0           # probability of a blank crop (the box geometry planes remain)
 
     def __post_init__(self):
         for name in ("prob", "grayscale", "blur_prob", "noise_prob", "jpeg_prob", "drop_pixels"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"relation.augment.{name} must be a probability in [0, 1], got {getattr(self, name)}")
+        if not 0 <= self.stretch < 0.5:
+            raise ValueError(f"relation.augment.stretch must be in [0, 0.5), got {self.stretch}")
         for name in ("brightness", "contrast", "saturation", "channel_gain"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"relation.augment.{name} must be in [0, 1), got {getattr(self, name)}")
@@ -106,10 +109,16 @@ def augment_crops(crops: torch.Tensor, cfg: AugmentConfig) -> torch.Tensor:
     idx = torch.nonzero(sel).flatten()
     n = len(idx)
     x = crops[idx].to(torch.float32)
-    if cfg.scale != (1.0, 1.0):  # zoom about the centre: the box stays centred, its size in the crop changes
+    if cfg.scale != (1.0, 1.0) or cfg.stretch > 0:
+        # zoom about the centre: the box stays centred, its size in the crop changes; with `stretch` the
+        # width and height change in opposite directions, as a fisheye's radial and tangential scales differ
         zoom = _uniform(n, *cfg.scale)
         theta = torch.zeros(n, 2, 3)
         theta[:, 0, 0] = theta[:, 1, 1] = 1.0 / zoom
+        if cfg.stretch > 0:
+            aspect = torch.exp(_uniform(n, -cfg.stretch, cfg.stretch))
+            theta[:, 0, 0] /= aspect
+            theta[:, 1, 1] *= aspect
         grid = F.affine_grid(theta, list(x.shape), align_corners=False)
         x = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     grey = (x * GREY_WEIGHTS).sum(1, keepdim=True)

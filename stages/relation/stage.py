@@ -25,11 +25,12 @@ from stages.precision import BF16, FP32, resolve_precision
 from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
+from stages.relation.warp import BoxWarpConfig
 from stages.word_format import load_image, open_dataset
 
 WEIGHTS_FILE = "relation.pt"
 CONFIG_FILE = "relation.json"
-MONITOR = "val/wheel_acc"
+MONITOR = "val/select"  # val wheel_acc, or minus the val loss (relation.train.select; lightning.RelationModule)
 
 
 def _limit(records: list, limit) -> list:
@@ -108,9 +109,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     backbone_bf16 = precision == BF16  # the module autocasts its backbone itself; the rest trains in fp32
     module = RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
                             optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
-                            backbone_bf16=backbone_bf16)
+                            backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")))
     augment = AugmentConfig.from_cfg(plain.get("augment"))
-    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment)
+    box_warp = BoxWarpConfig.from_cfg(plain.get("box_warp"))
+    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment, box_warp)
     ckpt_dir = out_dir / "checkpoints"
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()

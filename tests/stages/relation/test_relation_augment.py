@@ -43,7 +43,7 @@ def test_each_effect_alone_changes_the_crops():
     crops = sample_crops()
     effects = {"brightness": {"brightness": 0.5}, "grayscale": {"grayscale": 1.0}, "blur": {"blur_prob": 1.0},
                "noise": {"noise_prob": 1.0}, "jpeg": {"jpeg_prob": 1.0, "jpeg_quality": [20, 20]},
-               "scale": {"scale": [1.3, 1.3]}, "drop": {"drop_pixels": 1.0}}
+               "scale": {"scale": [1.3, 1.3]}, "stretch": {"stretch": 0.3}, "drop": {"drop_pixels": 1.0}}
     for name, change in effects.items():
         cfg = AugmentConfig(prob=1.0, **{k: tuple(v) if isinstance(v, list) else v for k, v in change.items()})
         torch.manual_seed(0)
@@ -74,3 +74,20 @@ def test_training_graphs_keep_their_geometry_when_augmented():
         if key != "crops":
             assert torch.equal(a[key], b[key]), key
     assert a["crops"].shape == b["crops"].shape and not torch.equal(a["crops"], b["crops"])
+
+
+def test_stretch_keeps_the_box_centred_and_changes_its_aspect():
+    """The anisotropic zoom is about the crop centre (where the box is): a centred square stays centred and
+    becomes a rectangle, wider than high or higher than wide."""
+    crops = torch.zeros(16, 3, 24, 24, dtype=torch.uint8)
+    crops[:, :, 8:16, 8:16] = 255
+    torch.manual_seed(0)
+    out = augment_crops(crops, AugmentConfig(prob=1.0, stretch=0.4)).float().mean(1)
+    grid = torch.arange(24, dtype=torch.float32) + 0.5
+    mass = out.sum((1, 2))
+    cx = (out.sum(1) * grid).sum(1) / mass
+    cy = (out.sum(2) * grid).sum(1) / mass
+    assert torch.allclose(cx, torch.full_like(cx, 12.0), atol=0.3) and torch.allclose(cy, torch.full_like(cy, 12.0), atol=0.3)
+    width = (out.max(1).values > 127).sum(1)
+    height = (out.max(2).values > 127).sum(1)
+    assert (width != height).any()

@@ -218,3 +218,25 @@ def test_training_seed_changes_the_weights(tmp_path):
     assert weights[0].keys() == weights[1].keys()
     assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     assert [json.loads((d / "relation.json").read_text())["seed"] for d in (first, second)] == [0, 1]
+
+
+def test_unknown_selection_mode_is_refused():
+    with pytest.raises(ValueError, match="relation.train.select"):
+        RelationModule(model=asdict(TINY), loss=LOSS, decode=DECODE, optim={"lr": 1e-3, "weight_decay": 0.0},
+                       select="pair_f1")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("select", ["wheel_acc", "loss"])
+def test_checkpoint_is_the_selected_epoch(tmp_path, select):
+    """relation.train.select decides which epoch's weights ship: the first epoch with the best val wheel_acc,
+    or the epoch with the lowest val loss."""
+    _write_dataset(tmp_path)
+    _, out = _run_stage(tmp_path, select, epochs=4, patience=10, select=select)
+    meta = json.loads((out / "relation.json").read_text())
+    curves = meta["curves"]
+    if select == "loss":
+        expected = min(range(len(curves)), key=lambda e: curves[e]["val/loss"])
+    else:
+        expected = max(range(len(curves)), key=lambda e: (curves[e]["val/wheel_acc"], -e))
+    assert meta["best_epoch"] == expected
