@@ -12,6 +12,7 @@ greedy by score, the evaluation's own matching). Groups, per class:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -19,7 +20,6 @@ from pathlib import Path
 import numpy as np
 
 from stages.geometry import pairwise_intersection
-from stages.inference.runtime import keep_at
 from stages.metrics import match_boxes
 from stages.word_format import VEHICLE, Record
 
@@ -30,9 +30,12 @@ def size_label(low: float, high: float) -> str:
     return f"<{high:g}" if low == 0 else (f">={low:g}" if math.isinf(high) else f"{low:g}-{high:g}")
 
 
-def found_flags(truth: Record, prediction: Record, min_score: float, num_classes: int) -> np.ndarray:
+def found_flags(truth: Record, prediction: Record, min_score: float) -> np.ndarray:
     """(N,) bool: which of ``truth``'s boxes a detection with score >= ``min_score`` matches."""
-    matched = set(match_boxes(truth, keep_at(prediction, [min_score] * num_classes)).values())
+    # filtered here rather than with the runtime's keep_at: importing stages.inference would put the relation's
+    # code into the detector stage's cache key
+    kept = dataclasses.replace(prediction, boxes=prediction.boxes[prediction.scores >= min_score])
+    matched = set(match_boxes(truth, kept).values())
     return np.array([int(b) in matched for b in truth.box_ids], dtype=bool)
 
 
@@ -60,7 +63,7 @@ def recall_breakdown(truths: Sequence[Record], predictions: Sequence[Record], cl
         if not len(truth.boxes):
             continue
         groups = box_groups(truth, occluded_share)
-        found.append(found_flags(truth, prediction, min_score, len(class_names)))
+        found.append(found_flags(truth, prediction, min_score))
         shorter.append(groups["shorter"])
         occluded.append(groups["occluded"])
         border.append(groups["border"])

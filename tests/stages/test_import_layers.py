@@ -54,3 +54,13 @@ def test_the_stages_module_graph_has_no_cycle():
 def test_inference_never_imports_torch():
     code = "import stages.inference.infer, sys; assert 'torch' not in sys.modules, 'torch imported'"
     subprocess.run([sys.executable, "-c", code], cwd=REPO, check=True)
+
+
+def test_the_detector_stage_key_holds_no_relation_code():
+    """Training the detector does not depend on the relation network: a change to the relation (or to the
+    inference runtime, which imports it) must not invalidate a 15-minute detector training in the cache."""
+    from pipeline.codeversion import code_version
+
+    files = code_version("stages.detector.stage", frozenset({"stages", "pipeline"})).files
+    assert "stages/detector/stage.py" in files
+    assert not [f for f in files if f.startswith(("stages/relation/", "stages/inference/", "stages/export/"))]
