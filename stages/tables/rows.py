@@ -1,10 +1,12 @@
 """The rows of the paper's tables, each a configuration given by its Hydra overrides (the same ones the
 ``experiment`` sweeps run), and which runs are that row.
 
-A run is a row when every parameter that defines the relation network (``relation.*`` except its training
-budget ``relation.train.*``, which the sweeps shorten) equals the row's composed configuration, composed
+A run is a row when every parameter that defines the relation network and its training (``relation.*``
+except the training budget -- epochs, patience, threads, image limits -- which the sweeps shorten, and the
+training seed, whose spread is not another configuration) equals the row's composed configuration, composed
 with the run's own profile (the profile resizes the network too). So a row can never drift from
-``conf/table2_row`` or ``conf/ablation``: an ablated run is never the default row, whatever it ablates.
+``conf/table2_row`` or ``conf/ablation``: an ablated run is never the default row, whatever it ablates, nor
+is a run trained on other data (``relation.train.detection_noise``, ``relation.box_warp``, ...).
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from pipeline.tracker import flatten_params
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 DEFINING_PREFIX = "relation."
-EXCLUDED_PREFIX = "relation.train."
+NOT_DEFINING = frozenset(f"relation.train.{k}" for k in ("epochs", "patience", "threads", "seed",
+                                                          "limit_train_images", "limit_val_images"))
 
 
 @dataclass(frozen=True)
@@ -57,7 +60,7 @@ class RowMatcher:
             finally:
                 GlobalHydra.instance().clear()
             self._definitions[key] = {k: v for k, v in flatten_params(cfg).items()
-                                      if k.startswith(DEFINING_PREFIX) and not k.startswith(EXCLUDED_PREFIX)}
+                                      if k.startswith(DEFINING_PREFIX) and k not in NOT_DEFINING}
         return self._definitions[key]
 
     def matches(self, row: Row, run: RunRecord) -> bool:

@@ -119,6 +119,17 @@ def test_an_ablated_run_is_never_the_default_row():
         assert matcher.matches(TABLE3_ROW, run) == (ablation in same_as_default), ablation
 
 
+def test_a_run_trained_otherwise_is_not_the_default_row_but_a_shorter_one_is():
+    matcher = RowMatcher()
+
+    def matches(overrides: list[str]) -> bool:
+        return matcher.matches(TABLE3_ROW, RunRecord("id", "name", 0, flatten_params(compose_config(overrides)), {}, {}))
+
+    assert matches(["relation.train.epochs=5", "relation.train.patience=2", "relation.train.threads=1", "seed=43"])
+    assert not matches(["relation.train.detection_noise.copies=0"])   # trained on labels only
+    assert not matches(["relation.train.lr=0.01"])
+
+
 def _job(tmp_path, num: int, overrides: list[str], hits: dict[str, bool]):
     job = tmp_path / str(num)
     (job / ".hydra").mkdir(parents=True)
