@@ -49,6 +49,18 @@ def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) ->
     return out
 
 
+def interleaved_times(step, names: list[str], steps: int) -> dict[str, list[float]]:
+    """Seconds of ``step(name)`` per name: one warm-up each (oneDNN primitive creation), then ``steps`` rounds
+    that run every name once, so a shared machine's load falls on all of them alike."""
+    for name in names:
+        step(name)
+    times: dict[str, list[float]] = {name: [] for name in names}
+    for _ in range(steps):
+        for name in names:
+            times[name].append(step(name))
+    return times
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--threads", type=int, default=2)
@@ -91,12 +103,7 @@ def main(argv: list[str] | None = None) -> None:
         opt.step()
         return time.perf_counter() - start
 
-    times: dict[str, list[float]] = {name: [] for name in variants}
-    for name in variants:
-        step(name)  # warm-up: oneDNN primitive creation
-    for _ in range(args.steps):
-        for name in variants:
-            times[name].append(step(name))
+    times = interleaved_times(step, list(variants), args.steps)
 
     print(f"CPU native bf16: {native_bf16}; threads {args.threads}; batch {args.batch} at {width}x{height}; "
           f"median of {args.steps} interleaved steps")
@@ -151,12 +158,7 @@ def relation_step_ratio(steps: int, images: int = 16) -> None:
         opt.step()
         return time.perf_counter() - start
 
-    times: dict[str, list[float]] = {name: [] for name in modules}
-    for name in modules:
-        step(name)
-    for _ in range(steps):
-        for name in modules:
-            times[name].append(step(name))
+    times = interleaved_times(step, list(modules), steps)
     fp32 = statistics.median(times["fp32"])
     print(f"\nrelation network ({model_cfg.backbone}, {in_cfg.input_size}x{in_cfg.input_size} crops), "
           f"{images} images of {sum(len(g.classes) for g in graphs)} objects per step")

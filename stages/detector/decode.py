@@ -30,6 +30,11 @@ def topk(heat: torch.Tensor, k: int) -> tuple[torch.Tensor, ...]:
     return scores, cell, classes, ys, xs
 
 
+def with_scores(boxes: torch.Tensor, scores: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
+    """(B, k, 4) boxes, (B, k) scores and classes -> (B, k, 6) detections ``x1, y1, x2, y2, score, class``."""
+    return torch.cat([boxes, scores.unsqueeze(-1), classes.to(boxes.dtype).unsqueeze(-1)], dim=-1)
+
+
 def ctdet_decode(heat: torch.Tensor, wh: torch.Tensor, reg: torch.Tensor, k: int = 100,
                  down_ratio: int = 4) -> torch.Tensor:
     """(B, C, H, W) heatmap probabilities, (B, 2, H, W) sizes and offsets -> (B, k, 6) detections
@@ -42,7 +47,7 @@ def ctdet_decode(heat: torch.Tensor, wh: torch.Tensor, reg: torch.Tensor, k: int
     cy = ys.to(heat.dtype) + offset[..., 1]
     half_w, half_h = size[..., 0] / 2, size[..., 1] / 2
     boxes = torch.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], dim=-1) * down_ratio
-    return torch.cat([boxes, scores.unsqueeze(-1), classes.to(heat.dtype).unsqueeze(-1)], dim=-1)
+    return with_scores(boxes, scores, classes)
 
 
 def ttfnet_decode(heat: torch.Tensor, ltrb: torch.Tensor, k: int = 100, down_ratio: int = 4) -> torch.Tensor:
@@ -54,7 +59,7 @@ def ttfnet_decode(heat: torch.Tensor, ltrb: torch.Tensor, k: int = 100, down_rat
     cx = (xs.to(heat.dtype) + 0.5) * down_ratio
     cy = (ys.to(heat.dtype) + 0.5) * down_ratio
     boxes = torch.stack([cx - d[..., 0], cy - d[..., 1], cx + d[..., 2], cy + d[..., 3]], dim=-1)
-    return torch.cat([boxes, scores.unsqueeze(-1), classes.to(heat.dtype).unsqueeze(-1)], dim=-1)
+    return with_scores(boxes, scores, classes)
 
 
 def decode_outputs(outputs: tuple[torch.Tensor, ...], k: int = 100, down_ratio: int = 4) -> torch.Tensor:

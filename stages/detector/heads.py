@@ -44,11 +44,10 @@ class CenterNetHeads(nn.Module):
         else:
             self.ltrb = head(c_in, head_conv, 4)
             branches = (self.ltrb,)
+        bias = LTRB_BIAS if regression == "ttfnet" else 0.0
         for branch in branches:
             nn.init.normal_(branch[-1].weight, std=0.001)
-            nn.init.zeros_(branch[-1].bias)
-        if regression == "ttfnet":
-            nn.init.constant_(self.ltrb[-1].bias, LTRB_BIAS)
+            nn.init.constant_(branch[-1].bias, bias)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         # In fp32 even under bf16 autocast: bf16 rounds 1 - 1e-4 to 1 (log(1 - p) = -inf in the focal loss),
