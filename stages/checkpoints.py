@@ -1,5 +1,6 @@
 """The checkpoint callbacks every training stage uses: the best epoch by a monitored metric, and the latest
-epoch (``last.ckpt``) for resuming after a crash and for reading back what ``ddp_spawn`` ranks trained.
+epoch (``last.ckpt``) for resuming after a crash and for reading back what ``ddp_spawn`` ranks trained; and
+the optional weight averaging whose weights those checkpoints then hold.
 
 Lightning's own ``save_last=True`` writes ``last.ckpt`` only in epochs that also saved a best
 checkpoint, so after an epoch without improvement it would hold an older epoch: resuming would repeat
@@ -21,3 +22,17 @@ def best_and_latest(ckpt_dir: Path, monitor: str, mode: str, best_name: str = "b
                            auto_insert_metric_name=False)
     latest = ModelCheckpoint(dirpath=ckpt_dir, filename=LAST, monitor=None, save_top_k=1, enable_version_counter=False)
     return best, latest
+
+
+def weight_averaging(decay: float) -> list:
+    """``[]`` for decay 0, else ``[EMAWeightAveraging]``: Lightning's exponential moving average of the weights
+    (and of BatchNorm's statistics), updated after every optimiser step with this decay. Training goes on with
+    the raw weights; validation, and so checkpoint selection, and every checkpoint's ``state_dict``, and so what
+    a stage ships, hold the average."""
+    if not 0 <= decay < 1:
+        raise ValueError(f"weight averaging: decay must be in [0, 1), got {decay}")
+    if decay == 0:
+        return []
+    from lightning.pytorch.callbacks import EMAWeightAveraging
+
+    return [EMAWeightAveraging(decay=decay)]

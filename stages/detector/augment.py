@@ -30,10 +30,24 @@ def flip_image(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image[:, ::-1])
 
 
+# RGB -> YIQ (NTSC): Y the luma, I and Q the chroma plane a hue rotation turns
+_RGB_TO_YIQ = np.array([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+
+
+def hue_rotation(turns: float) -> np.ndarray:
+    """The 3x3 matrix that turns an RGB colour's hue by ``turns`` of the colour circle about the grey axis
+    (a rotation of YIQ's chroma plane): greys, and the luma of every colour, stay as they are."""
+    c, s = np.cos(2 * np.pi * turns), np.sin(2 * np.pi * turns)
+    rotate = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    return np.linalg.inv(_RGB_TO_YIQ) @ rotate @ _RGB_TO_YIQ
+
+
 def photometric_jitter(image: np.ndarray, rng: np.random.Generator, brightness: float, contrast: float,
-                       saturation: float) -> np.ndarray:
-    """Random brightness, contrast and saturation factors in [1 - s, 1 + s], applied in a random order
-    (CenterNet's ``color_aug`` without the PCA lighting). Geometry is untouched, so labels stay valid."""
+                       saturation: float, hue: float = 0.0) -> np.ndarray:
+    """Random brightness, contrast and saturation factors in [1 - s, 1 + s] and a hue turn in [-hue, hue] of the
+    colour circle (0.5: any hue), applied in a random order (CenterNet's ``color_aug`` without the PCA lighting,
+    plus the hue of domain randomisation: a car's paint, the sky's tint and the ground's colour say nothing about
+    where the vehicles and wheels are). Geometry is untouched, so labels stay valid."""
     x = image.astype(np.float32)
     gray = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
@@ -48,7 +62,10 @@ def photometric_jitter(image: np.ndarray, rng: np.random.Generator, brightness: 
         a = rng.uniform(1 - saturation, 1 + saturation)
         return img * a + gray[..., None] * (1 - a)
 
-    ops = [scale_brightness, blend_contrast, blend_saturation]
+    def turn_hue(img):
+        return img @ hue_rotation(rng.uniform(-hue, hue)).T.astype(np.float32)
+
+    ops = [scale_brightness, blend_contrast, blend_saturation] + ([turn_hue] if hue > 0 else [])
     for i in rng.permutation(len(ops)):
         x = ops[i](x)
     return np.clip(x, 0, 255).astype(np.uint8)

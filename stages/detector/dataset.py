@@ -108,7 +108,7 @@ class CenterNetDataset(Dataset):
             image = crop_or_pad(image, x0, y0, cw, ch, PAD_VALUE)
             xyxy, keep = crop_boxes(xyxy, x0, y0, cw, ch, aug.get("crop_min_visible", 0.5))
             classes = classes[keep]
-        image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"])
+        image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"], aug.get("hue", 0.0))
         image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
                                aug.get("grayscale", 0.0))
         return image, xyxy, classes

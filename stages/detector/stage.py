@@ -75,7 +75,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     import lightning as L
     import torch
 
-    from stages.checkpoints import best_and_latest
+    from stages.checkpoints import best_and_latest, weight_averaging
     from stages.detector.curves import plot_curves
     from stages.detector.lightning import CenterNetModule, DetectorDataModule
     from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
@@ -115,7 +115,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
-        precision=precision, logger=loggers, callbacks=[checkpoint, latest, *lightning_progress("detector")],
+        precision=precision, logger=loggers,
+        callbacks=[*weight_averaging(float(det.get("ema_decay", 0.0))), checkpoint, latest, *lightning_progress("detector")],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()

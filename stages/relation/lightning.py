@@ -20,7 +20,7 @@ from stages.relation.decode import (
 )
 from stages.relation.inputs import SplitInputs, node_tensor
 from stages.relation.losses import relation_loss
-from stages.relation.model import ModelConfig, RelationNet
+from stages.relation.model import ModelConfig, RelationNet, pair_geometry
 from stages.relation.warp import BoxWarpConfig, random_box_warp
 
 COUNT_KEYS = tuple(f.name for f in fields(Counts))  # the §7 counts, summed across batches (and ranks)
@@ -165,8 +165,13 @@ class RelationModule(L.LightningModule):
 
     def _loss(self, outputs, batch):
         lc = self.hparams.loss
+        gate_weight = lc.get("gate_weight", 0.0)
+        gate_logits = None
+        if gate_weight > 0 and self.model.gate is not None:
+            gate_logits = self.model.gate.logits(pair_geometry(batch["coords"]))
         return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"],
-                             lc.get("rank_weight", 0.0), self.hparams.decode.get("min_containment", 0.0))
+                             lc.get("rank_weight", 0.0), self.hparams.decode.get("min_containment", 0.0),
+                             gate_logits, gate_weight)
 
     def training_step(self, batch, batch_idx):
         losses = self._loss(self(batch), batch)

@@ -170,9 +170,13 @@ class GeometryGate(nn.Module):
         super().__init__()
         self.net = nn.Sequential(nn.Linear(EDGE_FEATURES, hidden), nn.ReLU(), nn.Linear(hidden, 1))
 
-    def forward(self, geometry: torch.Tensor) -> torch.Tensor:
+    def logits(self, geometry: torch.Tensor) -> torch.Tensor:
+        """f(g_ij) + f(g_ji), the gate before its sigmoid (B, N, N); the training's gate loss reads it."""
         f = self.net(geometry).squeeze(-1)
-        return torch.sigmoid(f + f.transpose(1, 2))
+        return f + f.transpose(1, 2)
+
+    def forward(self, geometry: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.logits(geometry))
 
 
 @dataclass(frozen=True)

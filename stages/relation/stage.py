@@ -19,7 +19,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from stages.checkpoints import best_and_latest
+from stages.checkpoints import best_and_latest, weight_averaging
 from stages.lightning_logs import lightning_progress, route_lightning_logs
 from stages.precision import BF16, FP32, resolve_precision
 from stages.relation.augment import AugmentConfig
@@ -118,6 +118,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     history = CurveHistory()
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
                  history, *lightning_progress("relation")]
+    callbacks = [*weight_averaging(float(rel.train.get("ema_decay", 0.0))), *callbacks]
     logger = _tracking_logger()
     if logger is not None:  # the precision this machine trained in, beside the configured "auto"
         logger.log_hyperparams({"relation.precision": precision})

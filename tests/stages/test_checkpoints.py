@@ -1,10 +1,12 @@
-"""best_and_latest: last.ckpt follows every epoch, also those that do not improve the monitored metric."""
+"""best_and_latest: last.ckpt follows every epoch, also those that do not improve the monitored metric;
+weight_averaging: the checkpoints hold the exponential moving average of the weights."""
 
 import lightning as L
+import pytest
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
-from stages.checkpoints import best_and_latest
+from stages.checkpoints import best_and_latest, weight_averaging
 
 torch.set_num_threads(1)
 
@@ -35,3 +37,33 @@ def test_last_checkpoint_is_the_final_epoch_even_without_improvement(tmp_path):
     assert torch.load(tmp_path / "best.ckpt", weights_only=True)["epoch"] == 0
     assert torch.load(tmp_path / "last.ckpt", weights_only=True)["epoch"] == 2
     assert sorted(p.name for p in tmp_path.glob("*.ckpt")) == ["best.ckpt", "last.ckpt"]
+
+
+class RecordsWeights(PeakThenWorse):
+    """Keeps the raw weights after every optimiser step."""
+
+    def __init__(self):
+        super().__init__()
+        self.history = []
+
+    def on_train_batch_end(self, outputs, batch, batch_idx):
+        self.history.append(self.layer.weight.detach().clone())
+
+
+def test_weight_averaging_checkpoints_hold_the_moving_average_of_every_step(tmp_path):
+    assert weight_averaging(0.0) == []
+    with pytest.raises(ValueError, match="decay"):
+        weight_averaging(1.0)
+    torch.manual_seed(0)
+    loader = DataLoader(TensorDataset(torch.randn(6, 2)), batch_size=2)
+    best, latest = best_and_latest(tmp_path, "val/score", "max")
+    module = RecordsWeights()
+    trainer = L.Trainer(max_epochs=2, callbacks=[*weight_averaging(0.5), best, latest], logger=False,
+                        enable_progress_bar=False, enable_model_summary=False, accelerator="cpu", default_root_dir=tmp_path)
+    trainer.fit(module, loader, loader)
+    expected = module.history[0]  # the first update copies, every later one is 0.5 x average + 0.5 x weights
+    for weights in module.history[1:]:
+        expected = 0.5 * expected + 0.5 * weights
+    saved = torch.load(tmp_path / "last.ckpt", weights_only=True)["state_dict"]["layer.weight"]
+    assert len(module.history) == 6 and not torch.allclose(saved, module.history[-1])
+    assert torch.allclose(saved, expected)

@@ -11,6 +11,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from stages.relation.decode import allowed_owners
 from stages.relation.inputs import InputConfig
 from stages.relation.lightning import (
     GraphDataset,
@@ -19,7 +20,7 @@ from stages.relation.lightning import (
     collate_graphs,
     score_split,
 )
-from stages.relation.losses import owner_ranking
+from stages.relation.losses import owner_ranking, relation_loss
 from stages.relation.model import ModelConfig
 from tests.stages.relation import relation_data as rd
 
@@ -80,6 +81,47 @@ def test_owner_ranking_trains_each_wheels_order_among_its_allowed_vehicles():
     assert loss(0.9, 0.6, s30=0.99) == loss(0.9, 0.6)                       # an ownerless wheel adds nothing
     allowed[0, 2, 1] = False                                                # the decode may not choose it
     assert loss(0.6, 0.9) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_gate_loss_needs_the_gate_and_adds_its_weighted_term():
+    split = _split(4)
+    batch = collate_graphs([GraphDataset(split)[i] for i in range(len(split))])
+    module = _module(additions=True)
+    outputs = module(batch)
+    logits = module.model.gate.logits(module.model.geometry(batch["coords"]))
+    args = (outputs, batch, 1.0, 1.0, 0.1, 0.5, 0.8)
+    without = relation_loss(*args)
+    with_gate = relation_loss(*args, gate_logits=logits, gate_weight=2.0)
+    assert without["gate"].item() == 0.0 and with_gate["gate"].item() > 0
+    assert with_gate["loss"].item() == pytest.approx(without["loss"].item() + 2.0 * with_gate["gate"].item(), rel=1e-5)
+    with pytest.raises(ValueError, match="geometry_gate"):
+        relation_loss(*args, gate_weight=1.0)
+
+
+def test_gate_loss_teaches_the_gate_ownership_from_box_geometry_alone():
+    # trained on nothing but its own loss, the gate must rank each wheel's owner first among its allowed vehicles
+    split = _split(8)
+    module = _module(additions=True)
+    batch = collate_graphs([GraphDataset(split)[i] for i in range(len(split))])
+    gate = module.model.gate
+    geometry = module.model.geometry(batch["coords"])
+    allowed = allowed_owners(batch["classes"], batch["cand"], batch["coords"], 0.0)
+    has_owner = (batch["owner"].bool() & allowed).any(-1)
+
+    def owner_first_share() -> float:
+        with torch.no_grad():
+            logits = torch.where(allowed, gate.logits(geometry), torch.full_like(geometry[..., 0], -1e9))
+        best = logits.argmax(-1, keepdim=True)
+        right = batch["owner"].gather(-1, best).squeeze(-1).bool()
+        return float(right[has_owner].float().mean())
+
+    opt = torch.optim.Adam(gate.parameters(), lr=1e-2)
+    for _ in range(150):
+        loss = relation_loss(module(batch), batch, 1.0, 1.0, 0.1, 0.0, 0.0, gate.logits(geometry), 1.0)["gate"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert owner_first_share() > 0.95
 
 
 def _trainer(**kw) -> L.Trainer:
@@ -218,6 +260,25 @@ def test_training_seed_changes_the_weights(tmp_path):
     assert weights[0].keys() == weights[1].keys()
     assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     assert [json.loads((d / "relation.json").read_text())["seed"] for d in (first, second)] == [0, 1]
+
+
+@pytest.mark.slow
+def test_weight_averaging_ships_the_averaged_weights(tmp_path):
+    """relation.train.ema_decay: validation, selection and relation.pt see the exponential moving average of
+    the weights. With a decay near 1 the average stays at the first step's weights, so a second epoch moves
+    the shipped weights far less than it moves the trained ones."""
+    _write_dataset(tmp_path)
+
+    def weights(name, **train):
+        _, out = _run_stage(tmp_path, name, patience=10, select="loss", **train)
+        return torch.load(out / "relation.pt", weights_only=True)
+
+    def moved(a, b):
+        return sum(float((a[k].float() - b[k].float()).norm()) for k in a if a[k].is_floating_point())
+
+    plain = moved(weights("plain_1", epochs=1), weights("plain_2", epochs=2))
+    averaged = moved(weights("ema_1", epochs=1, ema_decay=0.99999), weights("ema_2", epochs=2, ema_decay=0.99999))
+    assert plain > 0 and averaged < 0.05 * plain
 
 
 def test_unknown_selection_mode_is_refused():
