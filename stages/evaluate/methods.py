@@ -87,24 +87,45 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
     return {r.image: boxes_only(r) for r in ctx.dataset.subset("test")}
 
 
+def _exported_detector(ctx: EvalContext, at_operating_point: bool):
+    """The export stage's detector in onnxruntime, or None when the run has none."""
+    from stages.inference.runtime import NoDetectorError, OnnxDetector
+
+    try:
+        return OnnxDetector(ctx.inputs["export"], at_operating_point=at_operating_point)
+    except NoDetectorError:
+        return None
+
+
+def _detect_test_split(detector, ctx: EvalContext) -> dict[str, Record]:
+    from stages.word_format import load_image
+
+    return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
+
+
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     """Detections of the test split: from the exported detector in onnxruntime when the export stage is
-    an input (the pipeline's DAG: what ships), else the detector stage's ``predictions_test.jsonl`` (of the
-    in-domain dataset only); None when the run has no detector."""
+    an input (the pipeline's DAG: what ships), at its operating point; else the detector stage's
+    ``predictions_test.jsonl`` (of the in-domain dataset only); None when the run has no detector."""
     if "export" in ctx.inputs:
-        from stages.inference.runtime import NoDetectorError, OnnxDetector
-        from stages.word_format import load_image
-
-        try:
-            detector = OnnxDetector(ctx.inputs["export"])
-        except NoDetectorError:
-            return None
-        return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
+        detector = _exported_detector(ctx, at_operating_point=True)
+        return None if detector is None else _detect_test_split(detector, ctx)
     if "detector" not in ctx.inputs or ctx.fit_dataset is not None:
         return None
     path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS
     records = read_records(path, root=ctx.dataset.root, allow_empty=True)
     return {r.image: boxes_only(r) for r in records}
+
+
+def detections_for_ap(ctx: EvalContext) -> list[Record] | None:
+    """Every detection of the test split down to the detector's ``score_threshold`` (the exported detector,
+    without its operating point): the detector stage's AP protocol. Average precision sweeps the score, so
+    detections cut at the operating point would end the precision-recall curve there and understate it.
+    None when the run has no exported detector."""
+    if "export" not in ctx.inputs:
+        return None
+    detector = _exported_detector(ctx, at_operating_point=False)
+    return None if detector is None else list(_detect_test_split(detector, ctx).values())
 
 
 BOX_SOURCES: dict[str, Callable[[EvalContext], dict[str, Record] | None]] = {

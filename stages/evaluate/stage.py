@@ -13,7 +13,7 @@ from pathlib import Path
 
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
-from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext
+from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext, detections_for_ap
 from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
@@ -51,15 +51,14 @@ def build_methods(ctx: EvalContext) -> dict[str, object]:
     return methods
 
 
-def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict, list]:
+def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict]:
     """Every method on every box source over ``ctx.dataset``'s test subsets: (results, ground-truth-box
-    predictions per method, detections of the test split or None)."""
+    predictions per method)."""
     ecfg, ds = ctx.cfg, ctx.dataset
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     subsets = {s: ds.subset(s) for s in SUBSETS}
     results: dict = {}
     gt_predictions: dict[str, dict] = {}
-    detections = None
     pred_dir.mkdir(parents=True, exist_ok=True)
     for boxes in ecfg.box_sources:
         if boxes not in BOX_SOURCES:
@@ -69,8 +68,6 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
             ctx.notes.append(f"`{boxes}` boxes skipped: this run has no detector (not an input of evaluate, "
                              "or left out with pipeline.skip)")
             continue
-        if boxes == "detected":
-            detections = list(inputs_by_image.values())
         for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
             inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],
                                                           wheel_pairs=[]))
@@ -82,7 +79,7 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
                                     for s, recs in subsets.items()}
             if boxes == "gt":
                 gt_predictions[name] = preds
-    return results, gt_predictions, detections
+    return results, gt_predictions
 
 
 def subset_sizes(ds, min_px: float) -> dict:
@@ -97,7 +94,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=priors)
     methods = build_methods(ctx)
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
-    results, gt_predictions, _ = score_dataset(ctx, methods, out_dir / "predictions")
+    results, gt_predictions = score_dataset(ctx, methods, out_dir / "predictions")
     sizes = subset_sizes(ds, min_px)
     report = {"results": results, "sizes": sizes, "notes": ctx.notes, "paper_table3": PAPER_TABLE3,
               "min_box_px": min_px, "match_iou": iou}
@@ -133,7 +130,7 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
                             fit_dataset=ctx.dataset)
     shift_ctx.train = ctx.train  # the same fitting sample: the held-out set has no train split
-    results, _, detections = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
+    results, _ = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
     min_px = float(ctx.cfg.min_box_px)
     sizes = subset_sizes(heldout, min_px)
     (out_dir / "report.json").write_text(json.dumps({"results": results, "sizes": sizes, "notes": shift_ctx.notes},
@@ -141,6 +138,7 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     (out_dir / "report.md").write_text(render_markdown(results, sizes, shift_ctx.notes,
                                                        "Held-out domain: owner-member relations"))
     metrics = {k.replace("eval.", "eval.shift.", 1): v for k, v in flatten(results).items()}
+    detections = detections_for_ap(shift_ctx)  # every score: the detector stage's AP protocol
     if detections is not None:
         metrics |= ap_metrics(detections, heldout.subset("test"), "shift", min_px)
     return metrics

@@ -52,3 +52,36 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     report = json.loads((ev / "report.json").read_text())
     assert set(report["results"]) == {"gt"} and set(report["results"]["gt"]) == {"logic", "deepword"}
     assert any("`detected` boxes skipped" in n for n in report["notes"])
+
+
+def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_point(upstream, monkeypatch):
+    """Relations are scored on the detections at the operating point, the AP on every detection down to the
+    detector's score_threshold: a precision-recall curve cut at the operating point would understate it."""
+    from dataclasses import replace
+
+    from stages.evaluate import methods
+    from stages.word_format.dataset import open_dataset
+
+    class FakeDetector:
+        """Each test image's true boxes as detections scored 0.2 and 0.6 in turn; 0.5 the operating point."""
+
+        def __init__(self, at_operating_point: bool):
+            self.at_operating_point = at_operating_point
+
+        def detect(self, rgb, source):
+            boxes = source.boxes.copy()
+            boxes[:, 4] = [0.2 if k % 2 else 0.6 for k in range(len(boxes))]
+            return replace(source, boxes=boxes[boxes[:, 4] >= 0.5] if self.at_operating_point else boxes,
+                           relations=[], wheel_pairs=[])
+
+    monkeypatch.setattr(methods, "_exported_detector", lambda ctx, at_operating_point: FakeDetector(at_operating_point))
+    dataset = open_dataset(upstream["data"])
+    ctx = methods.EvalContext(cfg=None, seed=0, inputs={**upstream, "export": upstream["data"]}, dataset=dataset,
+                              priors=None)
+    every, at_point = methods.detections_for_ap(ctx), methods.detected_boxes(ctx)
+    assert [r.image for r in every] == list(at_point) == [r.image for r in dataset.subset("test")]
+    assert any((r.scores == 0.2).any() for r in every)
+    assert all((r.scores == 0.6).all() for r in at_point.values())
+    # without an export (a relation-only run) there is nothing to measure
+    assert methods.detections_for_ap(methods.EvalContext(cfg=None, seed=0, inputs=upstream, dataset=dataset,
+                                                         priors=None)) is None
