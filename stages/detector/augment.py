@@ -32,6 +32,7 @@ def flip_image(image: np.ndarray) -> np.ndarray:
 
 # RGB -> YIQ (NTSC): Y the luma, I and Q the chroma plane a hue rotation turns
 _RGB_TO_YIQ = np.array([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+_YIQ_TO_RGB = np.linalg.inv(_RGB_TO_YIQ)
 
 
 def hue_rotation(turns: float) -> np.ndarray:
@@ -39,7 +40,7 @@ def hue_rotation(turns: float) -> np.ndarray:
     (a rotation of YIQ's chroma plane): greys, and the luma of every colour, stay as they are."""
     c, s = np.cos(2 * np.pi * turns), np.sin(2 * np.pi * turns)
     rotate = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-    return np.linalg.inv(_RGB_TO_YIQ) @ rotate @ _RGB_TO_YIQ
+    return _YIQ_TO_RGB @ rotate @ _RGB_TO_YIQ
 
 
 def photometric_jitter(image: np.ndarray, rng: np.random.Generator, brightness: float, contrast: float,

@@ -51,6 +51,23 @@ class EvalContext:
         return prepare_train(fit.subset("train"), float(self.cfg.min_box_px), int(self.cfg.fit_images), self.seed)
 
     @cached_property
+    def exported_detections(self) -> tuple[object, dict[str, Record]] | None:
+        """(the export stage's ``OnnxDetector``, {image: every detection of the test split down to its
+        score_threshold}), or None without an exported detector. One pass serves the relation rows (at the
+        operating point, ``detected_boxes``) and the AP (every score, ``detections_for_ap``)."""
+        if "export" not in self.inputs:
+            return None
+        from stages.inference.runtime import NoDetectorError, OnnxDetector
+        from stages.word_format import load_image
+
+        try:
+            detector = OnnxDetector(self.inputs["export"])
+        except NoDetectorError:
+            return None
+        return detector, {r.image: detector.detect_every(load_image(self.dataset.root, r), r)
+                          for r in self.dataset.subset("test")}
+
+    @cached_property
     def grids(self) -> SearchGrids:
         return SearchGrids.from_cfg(self.cfg.baseline_grids)
 
@@ -87,29 +104,15 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
     return {r.image: boxes_only(r) for r in ctx.dataset.subset("test")}
 
 
-def _exported_detector(ctx: EvalContext, at_operating_point: bool):
-    """The export stage's detector in onnxruntime, or None when the run has none."""
-    from stages.inference.runtime import NoDetectorError, OnnxDetector
-
-    try:
-        return OnnxDetector(ctx.inputs["export"], at_operating_point=at_operating_point)
-    except NoDetectorError:
-        return None
-
-
-def _detect_test_split(detector, ctx: EvalContext) -> dict[str, Record]:
-    from stages.word_format import load_image
-
-    return {r.image: detector.detect(load_image(ctx.dataset.root, r), r) for r in ctx.dataset.subset("test")}
-
-
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     """Detections of the test split: from the exported detector in onnxruntime when the export stage is
     an input (the pipeline's DAG: what ships), at its operating point; else the detector stage's
     ``predictions_test.jsonl`` (of the in-domain dataset only); None when the run has no detector."""
     if "export" in ctx.inputs:
-        detector = _exported_detector(ctx, at_operating_point=True)
-        return None if detector is None else _detect_test_split(detector, ctx)
+        if ctx.exported_detections is None:
+            return None
+        detector, every = ctx.exported_detections
+        return {image: detector.keep_operating_point(rec) for image, rec in every.items()}
     if "detector" not in ctx.inputs or ctx.fit_dataset is not None:
         return None
     path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS
@@ -122,10 +125,7 @@ def detections_for_ap(ctx: EvalContext) -> list[Record] | None:
     without its operating point): the detector stage's AP protocol. Average precision sweeps the score, so
     detections cut at the operating point would end the precision-recall curve there and understate it.
     None when the run has no exported detector."""
-    if "export" not in ctx.inputs:
-        return None
-    detector = _exported_detector(ctx, at_operating_point=False)
-    return None if detector is None else list(_detect_test_split(detector, ctx).values())
+    return None if ctx.exported_detections is None else list(ctx.exported_detections[1].values())
 
 
 BOX_SOURCES: dict[str, Callable[[EvalContext], dict[str, Record] | None]] = {

@@ -191,12 +191,20 @@ class OnnxDetector:
     def detect(self, rgb: np.ndarray, source: Record) -> Record:
         """``source``'s image (RGB uint8) -> a record with its detected boxes (real scores, no relations), those
         under their class's operating-point threshold left out."""
+        return self.keep_operating_point(self.detect_every(rgb, source))
+
+    def detect_every(self, rgb: np.ndarray, source: Record) -> Record:
+        """``detect`` without the operating point: every detection down to ``score_threshold``."""
         from stages.detector.letterbox import preprocess
         from stages.detector.predict import detections_to_record
 
         x, box = preprocess(rgb, self.input_width, self.input_height)
         (detections,) = self.session.run(["detections"], {DETECTOR_INPUT: x[None]})
-        record = detections_to_record(detections[0], source, box, self.score_threshold)
+        return detections_to_record(detections[0], source, box, self.score_threshold)
+
+    def keep_operating_point(self, record: Record) -> Record:
+        """A ``detect_every`` record with the boxes under their class's operating-point threshold left out (the
+        record itself when this detector has no operating point)."""
         if self.class_thresholds is None:
             return record
         kept = keep_at(record, self.class_thresholds)

@@ -60,21 +60,24 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
     from dataclasses import replace
 
     from stages.evaluate import methods
+    from stages.inference import runtime
     from stages.word_format.dataset import open_dataset
 
     class FakeDetector:
         """Each test image's true boxes as detections scored 0.2 and 0.6 in turn; 0.5 the operating point."""
 
-        def __init__(self, at_operating_point: bool):
-            self.at_operating_point = at_operating_point
+        def __init__(self, bundle_dir):
+            pass
 
-        def detect(self, rgb, source):
+        def detect_every(self, rgb, source):
             boxes = source.boxes.copy()
             boxes[:, 4] = [0.2 if k % 2 else 0.6 for k in range(len(boxes))]
-            return replace(source, boxes=boxes[boxes[:, 4] >= 0.5] if self.at_operating_point else boxes,
-                           relations=[], wheel_pairs=[])
+            return replace(source, boxes=boxes, relations=[], wheel_pairs=[])
 
-    monkeypatch.setattr(methods, "_exported_detector", lambda ctx, at_operating_point: FakeDetector(at_operating_point))
+        def keep_operating_point(self, record):
+            return replace(record, boxes=record.boxes[record.boxes[:, 4] >= 0.5])
+
+    monkeypatch.setattr(runtime, "OnnxDetector", FakeDetector)
     dataset = open_dataset(upstream["data"])
     ctx = methods.EvalContext(cfg=None, seed=0, inputs={**upstream, "export": upstream["data"]}, dataset=dataset,
                               priors=None)
