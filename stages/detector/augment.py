@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 
+from stages.colour import hue_rotation
 from stages.word_format import Record
 
 
@@ -28,19 +29,6 @@ def flip_record(record: Record) -> Record:
 def flip_image(image: np.ndarray) -> np.ndarray:
     """Mirror an HxWxC image left-right."""
     return np.ascontiguousarray(image[:, ::-1])
-
-
-# RGB -> YIQ (NTSC): Y the luma, I and Q the chroma plane a hue rotation turns
-_RGB_TO_YIQ = np.array([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
-_YIQ_TO_RGB = np.linalg.inv(_RGB_TO_YIQ)
-
-
-def hue_rotation(turns: float) -> np.ndarray:
-    """The 3x3 matrix that turns an RGB colour's hue by ``turns`` of the colour circle about the grey axis
-    (a rotation of YIQ's chroma plane): greys, and the luma of every colour, stay as they are."""
-    c, s = np.cos(2 * np.pi * turns), np.sin(2 * np.pi * turns)
-    rotate = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-    return _YIQ_TO_RGB @ rotate @ _RGB_TO_YIQ
 
 
 def photometric_jitter(image: np.ndarray, rng: np.random.Generator, brightness: float, contrast: float,

@@ -1,7 +1,7 @@
 """Appearance augmentation of the node crops in relation training (``relation.augment``).
 
 The crops carry the look of the training renderer (its paints, skies, sensor); the relation is geometric.
-Randomising the crops' appearance (photometric jitter, white balance, grayscale, blur, noise, JPEG, a zoom
+Randomising the crops' appearance (photometric jitter, hue, white balance, grayscale, blur, noise, JPEG, a zoom
 about the crop centre) and now and then blanking a crop's pixels makes the network lean on what transfers
 to other domains. Each crop draws its own effects from torch's global generator, which the relation
 stage seeds (``relation.train.seed``), so training stays reproducible. Boxes, graphs and targets are
@@ -17,6 +17,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from stages.colour import hue_rotation
+
 GREY_WEIGHTS = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
 
 
@@ -27,6 +29,8 @@ class AugmentConfig:
     contrast: float = 0.0              # contrast factor in 1 +- this
     saturation: float = 0.0            # saturation factor in 1 +- this
     channel_gain: float = 0.0          # per-channel gain (white balance) in 1 +- this
+    hue: float = 0.0                   # a turn of the crop's colours about the grey axis in +- this share of the
+                                       # colour circle (0.5: any hue; stages.colour.hue_rotation)
     grayscale: float = 0.0             # probability of a grey crop
     blur_prob: float = 0.0
     blur_sigma: tuple[float, float] = (0.5, 1.5)
@@ -44,6 +48,8 @@ class AugmentConfig:
                 raise ValueError(f"relation.augment.{name} must be a probability in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.stretch < 0.5:
             raise ValueError(f"relation.augment.stretch must be in [0, 0.5), got {self.stretch}")
+        if not 0 <= self.hue <= 0.5:
+            raise ValueError(f"relation.augment.hue must be in [0, 0.5] (a share of the colour circle), got {self.hue}")
         for name in ("brightness", "contrast", "saturation", "channel_gain"):
             if not 0 <= getattr(self, name) < 1:
                 raise ValueError(f"relation.augment.{name} must be in [0, 1), got {getattr(self, name)}")
@@ -121,6 +127,9 @@ def augment_crops(crops: torch.Tensor, cfg: AugmentConfig) -> torch.Tensor:
             theta[:, 1, 1] *= aspect
         grid = F.affine_grid(theta, list(x.shape), align_corners=False)
         x = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    if cfg.hue > 0:
+        turn = torch.from_numpy(hue_rotation(_uniform(n, -cfg.hue, cfg.hue).numpy())).to(x.dtype)
+        x = torch.einsum("nij,njhw->nihw", turn, x)
     grey = (x * GREY_WEIGHTS).sum(1, keepdim=True)
     if cfg.saturation > 0:
         s = _uniform(n, 1 - cfg.saturation, 1 + cfg.saturation).view(n, 1, 1, 1)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from stages.detector.augment import flip_image, flip_record, hue_rotation, photometric_jitter
+from stages.detector.augment import flip_image, flip_record, photometric_jitter
 from stages.word_format import Record, load_image, parse_record
 
 
@@ -49,17 +49,6 @@ def test_photometric_jitter_is_seeded_and_keeps_geometry():
     assert a.shape == image.shape and a.dtype == np.uint8 and np.array_equal(a, b)
     assert not np.array_equal(a, image)
     assert np.array_equal(photometric_jitter(image, np.random.default_rng(2), 0.0, 0.0, 0.0), image)
-
-
-def test_hue_rotation_turns_colours_about_the_grey_axis():
-    red, grey = np.array([200.0, 30.0, 30.0]), np.array([90.0, 90.0, 90.0])
-    half = hue_rotation(0.5)
-    assert np.allclose(half @ grey, grey) and np.allclose(hue_rotation(1.0), np.eye(3))
-    assert np.allclose(half @ half, np.eye(3)) and np.allclose(hue_rotation(0.2) @ hue_rotation(-0.2), np.eye(3))
-    luma = np.array([0.299, 0.587, 0.114])
-    turned = half @ red
-    assert np.isclose(luma @ turned, luma @ red)          # the brightness stays
-    assert turned[0] < turned[1] and turned[0] < turned[2]  # red turns towards cyan
 
 
 def test_photometric_jitter_hue_leaves_greys_and_is_off_at_zero():

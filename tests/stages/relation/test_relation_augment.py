@@ -43,7 +43,7 @@ def test_each_effect_alone_changes_the_crops():
     crops = sample_crops()
     effects = {"brightness": {"brightness": 0.5}, "grayscale": {"grayscale": 1.0}, "blur": {"blur_prob": 1.0},
                "noise": {"noise_prob": 1.0}, "jpeg": {"jpeg_prob": 1.0, "jpeg_quality": [20, 20]},
-               "scale": {"scale": [1.3, 1.3]}, "stretch": {"stretch": 0.3}, "drop": {"drop_pixels": 1.0}}
+               "scale": {"scale": [1.3, 1.3]}, "stretch": {"stretch": 0.3}, "hue": {"hue": 0.5}, "drop": {"drop_pixels": 1.0}}
     for name, change in effects.items():
         cfg = AugmentConfig(prob=1.0, **{k: tuple(v) if isinstance(v, list) else v for k, v in change.items()})
         torch.manual_seed(0)
@@ -57,8 +57,10 @@ def test_each_effect_alone_changes_the_crops():
 def test_a_bad_augment_config_names_the_field():
     with pytest.raises(ValueError, match="relation.augment.grayscale"):
         configured(grayscale=1.5)
-    with pytest.raises(ValueError, match="unknown fields \\['hue'\\]"):
-        configured(hue=0.1)
+    with pytest.raises(ValueError, match="relation.augment.hue"):
+        configured(hue=0.7)
+    with pytest.raises(ValueError, match="unknown fields \\['tint'\\]"):
+        configured(tint=0.1)
 
 
 def test_training_graphs_keep_their_geometry_when_augmented():
@@ -91,3 +93,17 @@ def test_stretch_keeps_the_box_centred_and_changes_its_aspect():
     width = (out.max(1).values > 127).sum(1)
     height = (out.max(2).values > 127).sum(1)
     assert (width != height).any()
+
+
+def test_hue_turns_colours_but_keeps_greys_and_luma():
+    crops = sample_crops()
+    grey = crops[:, :1].expand(-1, 3, -1, -1).contiguous()
+    cfg = AugmentConfig(prob=1.0, hue=0.5)
+    torch.manual_seed(0)
+    assert torch.equal(augment_crops(grey, cfg), grey)      # a grey crop has no hue to turn
+    torch.manual_seed(0)
+    turned = augment_crops(crops, cfg).float()
+    luma = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
+    inside = ((turned > 0) & (turned < 255)).all(1, keepdim=True)   # away from the clamp, the brightness stays
+    difference = ((turned * luma).sum(1, keepdim=True) - (crops.float() * luma).sum(1, keepdim=True))[inside]
+    assert difference.abs().max() <= 1.0 and not torch.equal(turned, crops.float())
