@@ -71,8 +71,10 @@ def headline_markdown(results: dict, detector: dict | None) -> list[str]:
                 f"AP@[.5:.95] {ap.get(f'detector.test.ap.{c}', float('nan')):.1f}" for c in classes) + ".")
         op = detector.get("operating_point")
         if op:
-            out.append("Operating point (score thresholds chosen on val by end-to-end DeepWORD pair_f1): "
-                       + ", ".join(f"{c} {op[c]:.2f}" for c in classes if c in op) + ".")
+            sides = detector.get("min_side") or {}
+            out.append("Operating point (chosen on val by end-to-end DeepWORD pair_f1): "
+                       + ", ".join(f"{c} score >= {op[c]:.2f}" + (f" and >= {sides[c]:g} px" if sides.get(c) else "")
+                                   for c in classes if c in op) + ".")
         out.append("")
     return out
 

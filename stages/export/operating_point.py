@@ -1,5 +1,5 @@
-"""The detector's operating point: one score threshold per class, chosen on the val split by the end-to-end
-pair_f1 of the shipped relation model, and stored in the bundle's ``export.json``.
+"""The detector's operating point: one score threshold and one minimum box side per class, chosen on the val
+split by the end-to-end pair_f1 of the shipped relation model, and stored in the bundle's ``export.json``.
 
 Every detection down to the detector's ``score_threshold`` (0.1) is worth keeping for AP, which integrates
 over all scores; a relation network fed all of them sees dozens of weak boxes per image, and each weak
@@ -7,51 +7,77 @@ vehicle box that overlaps a real one can take its wheels. What to keep is a trad
 false boxes that only the end-to-end metric can weigh, and the two classes weigh it differently (a false
 vehicle steals wheels, a false wheel only adds one claim), hence one threshold per class.
 
-The search is exhaustive over a grid of threshold pairs (coordinate ascent is not enough: keeping a weak
-false vehicle can be harmless while weak wheels are dropped and harmful once they are kept, so each class's
-best threshold depends on the other's), on pair_f1 as ``stages.metrics`` scores it: the evaluate
-stage's own definition, on the val split, never the test split. Among equally good pairs the one with the
-lowest thresholds wins (more recall for the same F1).
+Size is the other axis. Most of the wheels a relation model wrongly claims are boxes of a few pixels: where
+nothing is, or beside a wheel too small to place within IoU 0.5. A wheel box that small is also one the
+evaluation does not score as truth (``eval.min_box_px``), so keeping it can cost precision and gain nothing;
+whether it does on a given detector is what the search finds out, per class (``min_side_grid``).
+
+The search is exhaustive over the grid (coordinate ascent is not enough: keeping a weak false vehicle can be
+harmless while weak wheels are dropped and harmful once they are kept, so each class's best threshold
+depends on the other's), on pair_f1 as ``stages.metrics`` scores it: the evaluate stage's own definition, on
+the val split, never the test split. Among equally good points the one that keeps the most wins (the lowest
+thresholds, then the lowest minimum sides: more recall for the same F1).
 """
 
 from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from stages.inference.runtime import keep_at
 from stages.word_format import Record
 
-__all__ = ["DEFAULT_GRID", "SubsetRelation", "choose_thresholds", "end_to_end_pair_f1", "keep_at"]
+__all__ = ["DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "end_to_end_pair_f1", "keep_at",
+           "search_operating_point"]
 
 DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
 
 
-def end_to_end_pair_f1(truths: Sequence[Record], detections: Sequence[Record], thresholds: Sequence[float],
+@dataclass(frozen=True)
+class OperatingPoint:
+    """What a detection needs to be kept: a score of at least ``thresholds[class]`` and a shorter box side of at
+    least ``min_sides[class]`` image pixels."""
+    thresholds: tuple[float, ...]
+    min_sides: tuple[float, ...]
+
+    def keep(self, record: Record) -> Record:
+        return keep_at(record, self.thresholds, self.min_sides)
+
+
+def end_to_end_pair_f1(truths: Sequence[Record], detections: Sequence[Record], point: OperatingPoint,
                        predict: Callable[[list[Record]], list[Record]], min_box_px: float,
                        match_iou: float) -> float:
-    """pair_f1 (percent) of ``predict`` on the detections kept at ``thresholds``, against ``truths``."""
+    """pair_f1 (percent) of ``predict`` on the detections kept at ``point``, against ``truths``."""
     from stages.metrics import score_records
 
-    preds = predict([keep_at(d, thresholds) for d in detections])
+    preds = predict([point.keep(d) for d in detections])
     return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()["pair_f1"]
 
 
-def choose_thresholds(truths: Sequence[Record], detections: Sequence[Record],
-                      predict: Callable[[list[Record]], list[Record]], num_classes: int = 2,
-                      grid: Sequence[float] = DEFAULT_GRID, min_box_px: float = 0.0,
-                      match_iou: float = 0.5) -> tuple[tuple[float, ...], dict[tuple[float, ...], float]]:
-    """(the per-class thresholds on ``grid`` maximising end-to-end pair_f1, every evaluated
-    {thresholds: pair_f1}). ``detections[i]`` are the detections of ``truths[i]``'s image."""
+def search_operating_point(truths: Sequence[Record], detections: Sequence[Record],
+                           predict: Callable[[list[Record]], list[Record]], num_classes: int = 2,
+                           grid: Sequence[float] = DEFAULT_GRID,
+                           min_side_grid: Sequence[Sequence[float]] | None = None, min_box_px: float = 0.0,
+                           match_iou: float = 0.5) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
+    """(the operating point maximising end-to-end pair_f1, every evaluated {point: pair_f1}): every per-class
+    threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
+    minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image."""
     grid = sorted({float(t) for t in grid})
     if not grid:
-        raise ValueError("choose_thresholds: the threshold grid is empty")
-    seen = {t: end_to_end_pair_f1(truths, detections, t, predict, min_box_px, match_iou)
-            for t in itertools.product(grid, repeat=num_classes)}
+        raise ValueError("operating point: the threshold grid is empty")
+    sides = [[0.0]] * num_classes if min_side_grid is None else [sorted({float(s) for s in g}) for g in min_side_grid]
+    if len(sides) != num_classes or not all(sides):
+        raise ValueError(f"operating point: min_side_grid needs one non-empty list per class ({num_classes}), "
+                         f"got {min_side_grid}")
+    points = [OperatingPoint(t, m) for t in itertools.product(grid, repeat=num_classes)
+              for m in itertools.product(*sides)]
+    seen = {p: end_to_end_pair_f1(truths, detections, p, predict, min_box_px, match_iou) for p in points}
     best = max(seen.values())
-    chosen = min((t for t, f1 in seen.items() if f1 == best), key=lambda t: (sum(t), t))
+    chosen = min((p for p, f1 in seen.items() if f1 == best),
+                 key=lambda p: (sum(p.thresholds), p.thresholds, sum(p.min_sides), p.min_sides))
     return chosen, seen
 
 
@@ -60,12 +86,14 @@ class SubsetRelation:
 
     A graph's nodes are its boxes' crops and their pairwise priors, candidates and adjacency, each a function
     of its own box or its own pair only, so the graph of a subset of the boxes is the full graph with the
-    other nodes' rows and columns removed. The threshold search runs the relation model on many subsets of
-    the same detections; cropping them once makes it a matter of onnxruntime calls."""
+    other nodes' rows and columns removed. The search runs the relation model on many subsets of the same
+    detections; cropping them once makes it a matter of onnxruntime calls, and since many operating points
+    keep the same boxes of an image, each distinct subset is run once and remembered."""
 
     def __init__(self, relation, detections: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                  batch_size: int = 16):
         self.relation, self.batch_size = relation, batch_size
+        self.predicted: dict[tuple[str, tuple[int, ...]], Record] = {}
         self.graphs = {d.image: relation.graph(d, load_rgb(d)) for d in detections}
         # a detection record's box ids are its rows (detections_to_record numbers them 0..N-1)
         for d in detections:
@@ -81,8 +109,10 @@ class SubsetRelation:
                           adj=g.adj[pairs], cand=g.cand[pairs])
 
     def __call__(self, records: list[Record]) -> list[Record]:
-        out = []
-        for start in range(0, len(records), self.batch_size):
-            chunk = records[start:start + self.batch_size]
-            out += self.relation.predict_graphs(chunk, [self.subgraph(r) for r in chunk])
-        return out
+        keys = [(r.image, tuple(int(i) for i in r.box_ids)) for r in records]
+        pending = list({k: r for k, r in zip(keys, records, strict=True) if k not in self.predicted}.items())
+        for start in range(0, len(pending), self.batch_size):
+            chunk = pending[start:start + self.batch_size]
+            preds = self.relation.predict_graphs([r for _, r in chunk], [self.subgraph(r) for _, r in chunk])
+            self.predicted.update(zip((k for k, _ in chunk), preds, strict=True))
+        return [self.predicted[k] for k in keys]

@@ -70,15 +70,18 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
 
 
 def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
-                 operating_point: dict | None = None, detector_ap: dict | None = None) -> None:
+                 operating_point: dict | None = None, detector_ap: dict | None = None,
+                 min_sides: dict | None = None) -> None:
     """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector. The
-    detector's ``operating_point`` ({class name: score threshold}, chosen on val) is what inference keeps;
-    ``score_threshold`` is the lower bound of what its decoding returns at all. ``ap``: the detector stage's
+    detector's ``operating_point`` ({class name: score threshold}) and ``min_side`` ({class name: shorter box
+    side in image pixels}), chosen on val, are what inference keeps; ``score_threshold`` is the lower bound of
+    what its decoding returns at all. ``ap``: the detector stage's
     val/test AP, so that reports on this bundle can show it beside the end-to-end rows."""
     detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
                                                                       "score_threshold", "class_names")}
     if detector is not None:
         detector["operating_point"] = operating_point
+        detector["min_side"] = min_sides or {}
         detector["ap"] = detector_ap or {}
     files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
@@ -214,33 +217,48 @@ def detector_ap(detector_dir: Path) -> dict[str, float]:
     return {k: float(v) for k, v in metrics.items() if k.startswith(("detector.val.", "detector.test."))}
 
 
-def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float) -> tuple[dict, dict]:
-    """Per-class score thresholds of the exported detector, chosen on the val split by the end-to-end pair_f1
-    of the exported DeepWORD model (``stages.export.operating_point``); returns ({class: threshold}, metrics)."""
-    from stages.export.operating_point import SubsetRelation, choose_thresholds, end_to_end_pair_f1
+def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float) -> tuple[dict, dict, dict]:
+    """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
+    end-to-end pair_f1 of the exported DeepWORD model (``stages.export.operating_point``); returns
+    ({class: threshold}, {class: minimum side in pixels}, metrics)."""
+    from stages.export.operating_point import (
+        OperatingPoint,
+        SubsetRelation,
+        end_to_end_pair_f1,
+        search_operating_point,
+    )
     from stages.inference.runtime import OnnxDetector
 
     val = _limit(ds.subset("val"), op_cfg.images)
     if not val:
         raise ValueError("export: the val split is empty; the detector's operating point is chosen on it")
+    classes = list(det_cfg["class_names"])
+    side_cfg = op_cfg.get("min_side_grid") or {}
+    unknown = sorted(set(side_cfg) - set(classes))
+    if unknown:
+        raise ValueError(f"export.operating_point.min_side_grid: unknown classes {unknown}; the detector has {classes}")
+    side_grid = [list(side_cfg.get(c, [0.0])) for c in classes]
     detector = OnnxDetector(out_dir, threads=int(op_cfg.threads), at_operating_point=False)
     images = {r.image: load_image(ds.root, r) for r in val}
     detections = [detector.detect(images[r.image], r) for r in val]
     relation = SubsetRelation(OnnxRelation(out_dir, "dynamic", int(op_cfg.threads)), detections,
                               lambda rec: images[rec.image])
     match_iou = float(op_cfg.match_iou)
-    chosen, seen = choose_thresholds(val, detections, relation, len(det_cfg["class_names"]),
-                                     list(op_cfg.grid), min_box_px, match_iou)
-    floor = tuple([float(det_cfg["score_threshold"])] * len(det_cfg["class_names"]))
+    chosen, seen = search_operating_point(val, detections, relation, len(classes), list(op_cfg.grid), side_grid,
+                                          min_box_px, match_iou)
+    floor = OperatingPoint(tuple([float(det_cfg["score_threshold"])] * len(classes)), tuple([0.0] * len(classes)))
     f1_floor = seen.get(floor)
     if f1_floor is None:
         f1_floor = end_to_end_pair_f1(val, detections, floor, relation, min_box_px, match_iou)
-    thresholds = dict(zip(det_cfg["class_names"], chosen, strict=True))
+    thresholds = dict(zip(classes, chosen.thresholds, strict=True))
+    min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},
+               **{f"export.detector.min_side.{c}": float(m) for c, m in min_sides.items()},
                "export.detector.val_pair_f1": float(seen[chosen]),
                "export.detector.val_pair_f1_at_score_threshold": float(f1_floor),
-               "export.detector.operating_point_evaluations": float(len(seen))}
-    return thresholds, metrics
+               "export.detector.operating_point_evaluations": float(len(seen)),
+               "export.detector.operating_point_relation_runs": float(len(relation.predicted))}
+    return thresholds, min_sides, metrics
 
 
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
@@ -285,14 +303,14 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     }
     for name in ("static", "dynamic"):
         reports[name].check(f"export: {name} model", tol, agree)
-    det_metrics, operating_point, det_ap = {}, None, None
+    det_metrics, operating_point, min_sides, det_ap = {}, None, None, None
     if det_net is not None:
         reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
-        operating_point, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
-                                                             float(ex.min_box_px))
+        operating_point, min_sides, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
+                                                                        float(ex.min_box_px))
         det_metrics.update(op_metrics)
         det_ap = detector_ap(inputs["detector"])
-        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap)
+        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -327,5 +345,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
         registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads},
-                 operating_point, det_ap)
+                 operating_point, det_ap, min_sides)
     return metrics

@@ -156,12 +156,18 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
 # --- detector ---------------------------------------------------------------------------------------
 
-def keep_at(record: Record, thresholds: Sequence[float]) -> Record:
-    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``);
-    box ids are kept, so kept boxes still name the detections they came from."""
+def keep_at(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> Record:
+    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``)
+    and, with ``min_sides``, whose shorter side reaches their class's minimum (image pixels); box ids are kept,
+    so kept boxes still name the detections they came from."""
     from dataclasses import replace
 
-    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[record.class_ids.astype(int)]
+    classes = record.class_ids.astype(int)
+    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[classes]
+    if min_sides is not None:
+        xyxy = record.xyxy
+        shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
+        keep &= shorter >= np.asarray(min_sides, dtype=np.float64)[classes]
     return replace(record, boxes=record.boxes[keep].copy(), relations=[], wheel_pairs=[])
 
 
@@ -181,16 +187,19 @@ class OnnxDetector:
                                   "pipeline.skip=[detector]); use a run that trained one")
         self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
         self.score_threshold = float(cfg["score_threshold"])
-        # Per-class thresholds chosen on val (stages/export/operating_point.py); a bundle from before they existed,
-        # or at_operating_point=False (AP, the threshold search itself), keeps everything above score_threshold.
+        # Per-class thresholds and minimum box sides chosen on val (stages/export/operating_point.py); a bundle from
+        # before they existed, or at_operating_point=False (AP, the search itself), keeps everything above
+        # score_threshold.
         operating_point = cfg.get("operating_point") if at_operating_point else None
+        min_side = (cfg.get("min_side") or {}) if operating_point else {}
         self.class_thresholds = None if not operating_point else tuple(
             max(self.score_threshold, float(operating_point[name])) for name in cfg["class_names"])
+        self.class_min_sides = tuple(float(min_side.get(name, 0.0)) for name in cfg["class_names"])
         self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)
 
     def detect(self, rgb: np.ndarray, source: Record) -> Record:
         """``source``'s image (RGB uint8) -> a record with its detected boxes (real scores, no relations), those
-        under their class's operating-point threshold left out."""
+        under their class's operating-point threshold or minimum side left out."""
         return self.keep_operating_point(self.detect_every(rgb, source))
 
     def detect_every(self, rgb: np.ndarray, source: Record) -> Record:
@@ -203,11 +212,11 @@ class OnnxDetector:
         return detections_to_record(detections[0], source, box, self.score_threshold)
 
     def keep_operating_point(self, record: Record) -> Record:
-        """A ``detect_every`` record with the boxes under their class's operating-point threshold left out (the
-        record itself when this detector has no operating point)."""
+        """A ``detect_every`` record with the boxes under their class's operating-point threshold or minimum side
+        left out (the record itself when this detector has no operating point)."""
         if self.class_thresholds is None:
             return record
-        kept = keep_at(record, self.class_thresholds)
+        kept = keep_at(record, self.class_thresholds, self.class_min_sides)
         # ids 0..N-1 again, as every detection record has them
         kept.boxes[:, 6] = np.arange(len(kept.boxes))
         return kept

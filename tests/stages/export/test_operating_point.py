@@ -4,7 +4,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from stages.export.operating_point import choose_thresholds, end_to_end_pair_f1, keep_at
+from stages.export.operating_point import (
+    OperatingPoint,
+    SubsetRelation,
+    end_to_end_pair_f1,
+    keep_at,
+    search_operating_point,
+)
 from stages.geometry import containment
 from stages.word_format import Record
 
@@ -45,19 +51,67 @@ def test_keep_at_applies_one_threshold_per_class_and_keeps_ids():
     assert kept.box_ids.tolist() == [0, 1, 2] and kept.relations == []
 
 
+def test_keep_at_drops_boxes_under_their_class_minimum_side():
+    kept = keep_at(DETECTIONS, (0.1, 0.1), (0.0, 20.0))      # every wheel is 20 px; the vehicles stay
+    assert kept.box_ids.tolist() == [0, 1, 2, 3, 4]
+    kept = keep_at(DETECTIONS, (0.1, 0.1), (0.0, 20.5))
+    assert kept.box_ids.tolist() == [0, 3]
+
+
+def no_sides(thresholds) -> OperatingPoint:
+    return OperatingPoint(tuple(thresholds), (0.0, 0.0))
+
+
 def test_chosen_thresholds_maximise_val_pair_f1():
     grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
-    chosen, seen = choose_thresholds([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
-    every = {t: end_to_end_pair_f1([TRUTH], [DETECTIONS], t, tightest_vehicle, 0.0, 0.5)
+    chosen, seen = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
+    every = {no_sides(t): end_to_end_pair_f1([TRUTH], [DETECTIONS], no_sides(t), tightest_vehicle, 0.0, 0.5)
              for t in itertools.product(grid, repeat=2)}
     assert seen == pytest.approx(every)
     assert every[chosen] == max(every.values()) == 100.0
     # the false vehicle (0.45) must go and the weak true wheel (0.35) stay, the false wheel (0.25) go
-    assert chosen == (0.5, 0.3)
+    assert chosen == no_sides((0.5, 0.3))
     # keeping everything, as before the operating point, loses a wheel to the false vehicle and adds one
-    assert every[(0.1, 0.1)] < 70.0
+    assert every[no_sides((0.1, 0.1))] < 70.0
+
+
+# a tiny false wheel scored above the weak true one: no wheel threshold keeps the true wheel and drops it
+SMALL_FALSE = record([[10, 10, 110, 70, 0.9, 0, 0], [15, 50, 35, 70, 0.8, 1, 1], [85, 50, 105, 70, 0.35, 1, 2],
+                      [60, 62, 65, 67, 0.6, 1, 3]])
+
+
+def test_the_minimum_side_drops_a_small_false_wheel_a_threshold_cannot():
+    grid = [0.1, 0.3, 0.5, 0.7]
+    thresholds_only, seen_t = search_operating_point([TRUTH], [SMALL_FALSE], tightest_vehicle, 2, grid)
+    assert seen_t[thresholds_only] < 100.0
+    chosen, seen = search_operating_point([TRUTH], [SMALL_FALSE], tightest_vehicle, 2, grid,
+                                          [[0.0], [0.0, 4.0, 8.0, 25.0]])
+    assert len(seen) == 16 * 4 and seen[chosen] == max(seen.values()) == 100.0
+    # the lowest thresholds and the smallest minimum side that get there: the 5 px wheel goes, the 20 px ones stay
+    assert chosen == OperatingPoint((0.1, 0.1), (0.0, 8.0))
+    with pytest.raises(ValueError, match="one non-empty list per class"):
+        search_operating_point([TRUTH], [SMALL_FALSE], tightest_vehicle, 2, grid, [[0.0]])
+
+
+def test_subset_relation_runs_each_distinct_subset_once():
+    calls = []
+
+    class CountingRelation:
+        def graph(self, record, rgb):
+            from stages.relation.inputs import ImageGraph
+            n = len(record.boxes)
+            return ImageGraph(crops=np.zeros((n, 3, 2, 2), np.uint8), coords=np.zeros((n, 4)), classes=record.class_ids,
+                              valid=np.ones(n, bool), adj=np.zeros((n, n)), cand=np.zeros((n, n), bool))
+
+        def predict_graphs(self, records, graphs):
+            calls.extend(tuple(r.box_ids.tolist()) for r in records)
+            return tightest_vehicle(records)
+
+    relation = SubsetRelation(CountingRelation(), [DETECTIONS], lambda rec: None)
+    search_operating_point([TRUTH], [DETECTIONS], relation, 2, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    assert len(calls) == len(set(calls)) == len(relation.predicted) < 36
 
 
 def test_empty_grid_is_an_error():
     with pytest.raises(ValueError, match="grid is empty"):
-        choose_thresholds([TRUTH], [DETECTIONS], tightest_vehicle, 2, [])
+        search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, [])
