@@ -101,6 +101,8 @@ class OnnxRelation:
         self.one_owner = bool(meta["decode"]["one_owner"])
         self.has_roles = bool(meta["has_roles"])
         self.min_containment = float(meta["decode"].get("min_containment", 0.0))
+        # score each graph and its mirror image and decide on the mean (relation.decode.flip_average)
+        self.flip_average = bool(meta["decode"].get("flip_average", False))
         self.priors = load_priors(bundle_dir / PRIORS_FILE)
         self.session = ort_session(bundle_dir / RELATION_FILES[variant], threads)
         self.static_n = self.inputs.max_objects if variant == "static" else None
@@ -111,9 +113,17 @@ class OnnxRelation:
         return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
 
     def scores(self, graphs: Sequence) -> tuple[np.ndarray, ...]:
-        """(owner, couple, front, classes, cand, coords) for a batch of graphs."""
+        """(owner, couple, front, classes, cand, coords) for a batch of graphs; with ``flip_average`` the
+        scores are the mean of the graphs' and their mirror images' (test-time augmentation by the flip the
+        network trained with: decisions no longer depend on which way the image faces)."""
         feed, classes = pad_graphs(graphs, self.inputs.input_size, self.static_n)
         owner, couple, front = self.session.run(list(RELATION_OUTPUTS), feed)
+        if self.flip_average:
+            from stages.relation.inputs import mirrored
+
+            flipped, _ = pad_graphs([mirrored(g) for g in graphs], self.inputs.input_size, self.static_n)
+            owner_m, couple_m, front_m = self.session.run(list(RELATION_OUTPUTS), flipped)
+            owner, couple, front = (owner + owner_m) / 2, (couple + couple_m) / 2, (front + front_m) / 2
         return owner, couple, front, classes, feed["cand"], feed["coords"]
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -201,6 +201,15 @@ class ImageGraph:
     valid: np.ndarray    # (n,) bool
     adj: np.ndarray      # (n, n) float32
     cand: np.ndarray     # (n, n) bool
+
+
+def mirrored(graph: ImageGraph) -> ImageGraph:
+    """The graph of the image mirrored left-right: crops flipped, x coordinates mirrored; classes, validity,
+    adjacency and candidates as they are (the pair priors see distances and size ratios, not sides). What
+    ``relation.train.hflip`` trains on, and what ``relation.decode.flip_average`` scores a second time."""
+    coords = graph.coords.copy()
+    coords[:, 0], coords[:, 2] = 1.0 - graph.coords[:, 2], 1.0 - graph.coords[:, 0]
+    return replace(graph, crops=np.ascontiguousarray(graph.crops[..., ::-1]), coords=coords)
 
 
 def build_graph(rec: Record, rgb: np.ndarray, cfg: InputConfig, wheel_vehicle: PriorFn,

@@ -166,3 +166,32 @@ def test_infer_with_a_calibration_file_writes_footprints_and_a_top_view(exported
     assert infer([*args, "--calibration", str(tmp_path / "bad.json")]) == 2
     err = capsys.readouterr().err
     assert "bad.json: field 'intrinsic.width'" in err and "Traceback" not in err
+
+
+def test_flip_averaged_relation_scores_do_not_depend_on_which_way_the_image_faces(exported, upstream, tmp_path):
+    """``relation.decode.flip_average``: the scores are the mean over the graph and its mirror image, so an
+    image and its mirror image get the same scores; without it they differ."""
+    import shutil
+
+    from stages.inference.runtime import BUNDLE_FILE, OnnxRelation
+    from stages.relation.inputs import mirrored
+    from stages.word_format import load_image, open_dataset
+
+    out, _ = exported
+    bundle = tmp_path / "bundle"
+    shutil.copytree(out, bundle)
+    meta = json.loads((bundle / BUNDLE_FILE).read_text())
+    meta["relation"]["decode"]["flip_average"] = True
+    (bundle / BUNDLE_FILE).write_text(json.dumps(meta))
+    ds = open_dataset(upstream["data"])
+    plain, averaged = OnnxRelation(out), OnnxRelation(bundle)
+    assert averaged.flip_average and not plain.flip_average
+    recs = ds.subset("test")[:4]
+    graphs = [plain.graph(r, load_image(ds.root, r)) for r in recs]
+    flipped = [mirrored(g) for g in graphs]
+    a, b = averaged.scores(graphs), averaged.scores(flipped)
+    p, q = plain.scores(graphs), plain.scores(flipped)
+    for k in range(3):  # owner, couple, front
+        assert np.allclose(a[k], b[k], atol=1e-6)
+        assert np.allclose(a[k], (p[k] + q[k]) / 2, atol=1e-6)
+    assert not np.allclose(p[0], q[0], atol=1e-4)
