@@ -203,13 +203,19 @@ class ImageGraph:
     cand: np.ndarray     # (n, n) bool
 
 
+def mirror_coords(coords):
+    """(n, 4) normalised boxes (x1, y1, x2, y2; numpy or torch) of the image mirrored left-right, a new array:
+    x1' = 1 - x2, x2' = 1 - x1."""
+    out = coords[:, [2, 1, 0, 3]]   # advanced indexing copies, in numpy and torch alike
+    out[:, [0, 2]] = 1.0 - out[:, [0, 2]]
+    return out
+
+
 def mirrored(graph: ImageGraph) -> ImageGraph:
     """The graph of the image mirrored left-right: crops flipped, x coordinates mirrored; classes, validity,
     adjacency and candidates as they are (the pair priors see distances and size ratios, not sides). What
     ``relation.train.hflip`` trains on, and what ``relation.decode.flip_average`` scores a second time."""
-    coords = graph.coords.copy()
-    coords[:, 0], coords[:, 2] = 1.0 - graph.coords[:, 2], 1.0 - graph.coords[:, 0]
-    return replace(graph, crops=np.ascontiguousarray(graph.crops[..., ::-1]), coords=coords)
+    return replace(graph, crops=np.ascontiguousarray(graph.crops[..., ::-1]), coords=mirror_coords(graph.coords))
 
 
 def build_graph(rec: Record, rgb: np.ndarray, cfg: InputConfig, wheel_vehicle: PriorFn,

@@ -18,7 +18,7 @@ from stages.relation.decode import (
     metrics_from_counts,
     relation_counts,
 )
-from stages.relation.inputs import SplitInputs, node_tensor
+from stages.relation.inputs import SplitInputs, mirror_coords, node_tensor
 from stages.relation.losses import relation_loss
 from stages.relation.model import ModelConfig, RelationNet, pair_geometry
 from stages.relation.warp import BoxWarpConfig, random_box_warp
@@ -68,9 +68,7 @@ class GraphDataset(Dataset):
         crops = self.crops[start:stop]
         if self.hflip > 0 and torch.rand(()) < self.hflip:
             crops = crops.flip(-1)
-            coords = item["coords"].clone()
-            coords[:, 0], coords[:, 2] = 1.0 - item["coords"][:, 2], 1.0 - item["coords"][:, 0]
-            item["coords"] = coords
+            item["coords"] = mirror_coords(item["coords"])
         if self.box_warp is not None:
             item["coords"] = random_box_warp(item["coords"], self.box_warp)
         if self.augment is not None:
