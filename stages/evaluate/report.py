@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from stages import paper
+from stages.evaluate.pair_errors import FALSE_CAUSES, MISSED_CAUSES
 from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
@@ -79,10 +80,33 @@ def headline_markdown(results: dict, detector: dict | None) -> list[str]:
     return out
 
 
+def errors_markdown(errors: dict[str, dict[str, dict[str, int]]], boxes: str) -> list[str]:
+    """{method: {subset: ``PairErrors.as_dict()``}} as a table: per method and subset, the true pairs found, the
+    missed ones by cause and the false claims by cause (``stages.evaluate.pair_errors``)."""
+    if not errors:
+        return []
+    causes = [("missed", k, label) for k, label in MISSED_CAUSES.items()] + \
+             [("false", k, label) for k, label in FALSE_CAUSES.items()]
+    out = [f"## Where the pair errors are: {BOX_TITLES.get(boxes, boxes)}", "",
+           "Each missed true pair and each false claim put down to one cause (stages/evaluate/pair_errors.py): "
+           "the missed ones add up to the pairs pair_recall misses, the false ones to those pair_precision counts "
+           "against.", "",
+           "| method | subset | true pairs found | " + " | ".join(f"{kind}: {label}" for kind, _, label in causes) + " |",
+           "|---|---|---:|" + "---:|" * len(causes)]
+    for method, subsets in errors.items():
+        for subset in SUBSETS:
+            if subset in subsets:
+                row = subsets[subset]
+                counts = " | ".join(str(row[k]) for _, k, _ in causes)
+                out.append(f"| {method} | {subset} | {row['found']} | {counts} |")
+    return out + [""]
+
+
 def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list[str], title: str,
-                    lead: list[str] | None = None) -> str:
+                    lead: list[str] | None = None, errors: dict | None = None) -> str:
     """``results`` as in ``flatten``; ``sizes[subset]`` = {"images": n, "wheels": n evaluated}; ``lead``:
-    markdown lines shown before the per-metric tables (the end-to-end headline)."""
+    markdown lines shown before the per-metric tables (the end-to-end headline); ``errors``: {boxes: {method:
+    {subset: pair errors by cause}}}, shown after each box source's tables."""
     out = [f"# {title}", ""]
     out.append("Subsets: " + ", ".join(f"{s} = {sizes[s]['images']} images / {sizes[s]['wheels']} evaluated wheels"
                                        for s in SUBSETS if s in sizes) + ".")
@@ -95,6 +119,7 @@ def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list
         out += [f"## {BOX_TITLES.get(boxes, boxes)}", ""]
         for metric in METRICS:
             out += table3(methods, metric, metric in PAPER_METRICS) + [""]
+        out += errors_markdown((errors or {}).get(boxes, {}), boxes)
     if notes:
         out += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
     return "\n".join(out)

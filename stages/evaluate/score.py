@@ -16,6 +16,7 @@ import json
 import sys
 from pathlib import Path
 
+from stages.evaluate.pair_errors import pair_errors_records
 from stages.evaluate.report import render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.word_format import LABELS_FILE, DatasetError, Record, difficulty_subsets, read_records
@@ -63,11 +64,13 @@ def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, s
     preds = load_predictions(pred_path, root, by_image)
     subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed, max_easy_vehicles).items()}
     results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
+    errors = {s: pair_errors_records(recs, preds, min_box_px, match_iou).as_dict() for s, recs in subsets.items()}
     sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
              for s, recs in subsets.items()}
     missing = len(set(by_image) - set(preds))
-    return {"results": results, "sizes": sizes, "missing_images": missing, "predictions": str(pred_path),
-            "ground_truth": str(gt_root), "min_box_px": min_box_px, "match_iou": match_iou}
+    return {"results": results, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
+            "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
+            "match_iou": match_iou}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -88,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     notes = [f"{out['missing_images']} ground-truth images had no prediction (scored as no relations)"]
     print(render_markdown({"predictions": {args.name: out["results"]}}, out["sizes"], notes,
-                          f"Scores of {args.pred} against {args.gt}"))
+                          f"Scores of {args.pred} against {args.gt}",
+                          errors={"predictions": {args.name: out["pair_errors"]}}))
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

@@ -14,6 +14,7 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext, detections_for_ap
+from stages.evaluate.pair_errors import pair_errors_records
 from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
@@ -51,13 +52,14 @@ def build_methods(ctx: EvalContext) -> dict[str, object]:
     return methods
 
 
-def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict]:
-    """Every method on every box source over ``ctx.dataset``'s test subsets: (results, ground-truth-box
-    predictions per method)."""
+def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict, dict]:
+    """Every method on every box source over ``ctx.dataset``'s test subsets: (results, pair errors by cause
+    ({boxes: {method: {subset: counts}}}), ground-truth-box predictions per method)."""
     ecfg, ds = ctx.cfg, ctx.dataset
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     subsets = {s: ds.subset(s) for s in SUBSETS}
     results: dict = {}
+    errors: dict = {}
     gt_predictions: dict[str, dict] = {}
     pred_dir.mkdir(parents=True, exist_ok=True)
     for boxes in ecfg.box_sources:
@@ -71,15 +73,17 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
         for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
             inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],
                                                           wheel_pairs=[]))
-        results[boxes] = {}
+        results[boxes], errors[boxes] = {}, {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}
             write_records(predictions_file(pred_dir, boxes, name), list(preds.values()))
             results[boxes][name] = {s: score_records(recs, preds, min_px, iou).percentages()
                                     for s, recs in subsets.items()}
+            errors[boxes][name] = {s: pair_errors_records(recs, preds, min_px, iou).as_dict()
+                                   for s, recs in subsets.items()}
             if boxes == "gt":
                 gt_predictions[name] = preds
-    return results, gt_predictions
+    return results, errors, gt_predictions
 
 
 def subset_sizes(ds, min_px: float) -> dict:
@@ -94,17 +98,17 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=priors)
     methods = build_methods(ctx)
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
-    results, gt_predictions = score_dataset(ctx, methods, out_dir / "predictions")
+    results, errors, gt_predictions = score_dataset(ctx, methods, out_dir / "predictions")
     sizes = subset_sizes(ds, min_px)
-    report = {"results": results, "sizes": sizes, "notes": ctx.notes, "paper_table3": PAPER_TABLE3,
-              "min_box_px": min_px, "match_iou": iou}
+    report = {"results": results, "pair_errors": errors, "sizes": sizes, "notes": ctx.notes,
+              "paper_table3": PAPER_TABLE3, "min_box_px": min_px, "match_iou": iou}
     metrics = flatten(results)
     if "shift_data" in inputs:
         metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     lead = headline_markdown(results, detector_entry(inputs))
     (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
-                                                       lead))
+                                                       lead, errors))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
         {name: baseline_params(m) for name, m in methods.items() if name in ("logic", "logic_plus", "prior")},
         indent=1))
@@ -130,13 +134,13 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
                             fit_dataset=ctx.dataset)
     shift_ctx.train = ctx.train  # the same fitting sample: the held-out set has no train split
-    results, _ = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
+    results, errors, _ = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
     min_px = float(ctx.cfg.min_box_px)
     sizes = subset_sizes(heldout, min_px)
-    (out_dir / "report.json").write_text(json.dumps({"results": results, "sizes": sizes, "notes": shift_ctx.notes},
-                                                    indent=1))
+    (out_dir / "report.json").write_text(json.dumps({"results": results, "pair_errors": errors, "sizes": sizes,
+                                                     "notes": shift_ctx.notes}, indent=1))
     (out_dir / "report.md").write_text(render_markdown(results, sizes, shift_ctx.notes,
-                                                       "Held-out domain: owner-member relations"))
+                                                       "Held-out domain: owner-member relations", errors=errors))
     metrics = {k.replace("eval.", "eval.shift.", 1): v for k, v in flatten(results).items()}
     detections = detections_for_ap(shift_ctx)  # every score: the detector stage's AP protocol
     if detections is not None:

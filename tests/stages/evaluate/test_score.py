@@ -2,6 +2,7 @@
 malformed predictions files."""
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -35,6 +36,21 @@ def test_missing_images_count_as_no_relations(data, tmp_path):
     res = json.loads(out.read_text())
     assert res["missing_images"] == 15
     assert res["results"]["mixed"]["pair_recall"] < 100
+
+
+def test_pair_errors_are_printed_and_written(data, tmp_path, capsys):
+    recs = read_records(data / "labels.jsonl")
+    dropped = [replace(r, relations=r.relations[1:]) if r.relations else r for r in recs]  # one pair less an image
+    write_records(tmp_path / "pred.jsonl", dropped)
+    out = tmp_path / "scores.json"
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl"), "--json", str(out), "--min-box-px", "0"]) == 0
+    assert "## Where the pair errors are: predictions" in capsys.readouterr().out
+    errors = json.loads(out.read_text())["pair_errors"]
+    lost = sum(1 for r in recs if r.relations)
+    # every box is there, so each dropped pair is "both detected, not paired" and nothing is claimed falsely
+    assert errors["easy"]["not_paired"] + errors["hard"]["not_paired"] == lost
+    assert all(errors[s][k] == 0 for s in errors for k in ("wheel_missed", "vehicle_missed", "false_wheel",
+                                                           "false_vehicle", "wrong_pair"))
 
 
 def test_unknown_image_is_an_error(data, tmp_path, capsys):

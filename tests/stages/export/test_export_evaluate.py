@@ -20,6 +20,19 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     md = (evaluated / "report.md").read_text()
     assert md.index("## End to end") < md.index("## detected boxes") < md.index("## ground-truth boxes")
     assert "Operating point" in md
+    # each box source's tables end with the pair errors by cause, which add up to the pairs the scores count
+    assert md.index("## detected boxes") < md.index("## Where the pair errors are: detected boxes") < \
+        md.index("## ground-truth boxes")
+    for boxes in ("gt", "detected"):
+        for subset in ("easy", "hard", "mixed"):
+            e = report["pair_errors"][boxes]["deepword"][subset]
+            missed = e["wheel_missed"] + e["vehicle_missed"] + e["not_paired"]
+            false = e["false_wheel"] + e["false_vehicle"] + e["wrong_pair"]
+            scores = report["results"][boxes]["deepword"][subset]
+            recall = 100.0 * e["found"] / (e["found"] + missed) if e["found"] + missed else 100.0
+            precision = 100.0 * e["found"] / (e["found"] + false) if e["found"] + false else 100.0
+            assert recall == scores["pair_recall"] and precision == scores["pair_precision"]
+    assert all(report["pair_errors"]["gt"]["deepword"][s]["wheel_missed"] == 0 for s in ("easy", "hard", "mixed"))
 
 
 def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_ground_truth_boxes(upstream, tmp_path):

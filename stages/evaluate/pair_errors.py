@@ -1,0 +1,90 @@
+"""Where the pair errors come from: each missed true pair and each false claim put down to one cause, so that on
+detected boxes a user sees whether the detector or the relation model cost it.
+
+Counted on exactly the pairs and claims that ``stages.metrics.score_image`` counts (the same box matching, the
+same evaluated and ignored wheels), so the causes of missed pairs add up to pair_fn and those of false claims to
+pair_fp:
+
+- a true pair of an evaluated wheel that no claim names is missed because its wheel matched no predicted box
+  (``wheel_missed``), else because its vehicle did not (``vehicle_missed``), else because the two matched boxes
+  were not paired (``not_paired``);
+- a claim that is not a true pair, or repeats one, is false because its wheel box matches no ground-truth wheel
+  (``false_wheel``), else because its vehicle box matches no ground-truth vehicle (``false_vehicle``), else
+  because both boxes are real and the pair is wrong (``wrong_pair``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from stages.metrics import evaluated_wheel_ids, match_boxes
+from stages.word_format import WHEEL, Record, boxes_only
+
+# Causes of missed true pairs, then of false claims (``PairErrors`` fields, in report order), with their labels.
+MISSED_CAUSES = {"wheel_missed": "wheel not detected", "vehicle_missed": "vehicle not detected",
+                 "not_paired": "both detected, not paired"}
+FALSE_CAUSES = {"false_wheel": "wheel box matches no wheel", "false_vehicle": "vehicle box matches no vehicle",
+                "wrong_pair": "both boxes real, wrong pair"}
+UNMATCHED = "unmatched"  # stands for a predicted box that matched no ground-truth box: equal to no true id
+
+
+@dataclass
+class PairErrors:
+    """Pair errors by cause, summed over images: ``found`` true pairs, the missed ones by why
+    (``MISSED_CAUSES``), the false claims by why (``FALSE_CAUSES``)."""
+
+    found: int = 0
+    wheel_missed: int = 0
+    vehicle_missed: int = 0
+    not_paired: int = 0
+    false_wheel: int = 0
+    false_vehicle: int = 0
+    wrong_pair: int = 0
+
+    def __add__(self, other: PairErrors) -> PairErrors:
+        return PairErrors(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def pair_errors(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> PairErrors:
+    """One image's pair errors by cause (see the module doc)."""
+    evaluated = evaluated_wheel_ids(gt, min_box_px)
+    ignored = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL} - evaluated
+    to_gt = match_boxes(gt, pred, match_iou)
+    found = set(to_gt.values())
+    true_pairs = {(int(v), int(w)) for v, w, _ in gt.relations if w in evaluated}
+    errors = PairErrors()
+    credited: set[tuple] = set()
+    for v, w, _ in pred.relations:
+        vehicle, wheel = to_gt.get(int(v), UNMATCHED), to_gt.get(int(w), UNMATCHED)
+        if wheel in ignored:
+            continue
+        if (vehicle, wheel) in true_pairs and (vehicle, wheel) not in credited:
+            credited.add((vehicle, wheel))
+        elif wheel == UNMATCHED:
+            errors.false_wheel += 1
+        elif vehicle == UNMATCHED:
+            errors.false_vehicle += 1
+        else:
+            errors.wrong_pair += 1
+    errors.found = len(credited)
+    for v, w in true_pairs - credited:
+        if w not in found:
+            errors.wheel_missed += 1
+        elif v not in found:
+            errors.vehicle_missed += 1
+        else:
+            errors.not_paired += 1
+    return errors
+
+
+def pair_errors_records(gts: list[Record], preds: dict[str, Record], min_box_px: float = 0.0,
+                        match_iou: float = 0.5) -> PairErrors:
+    """``pair_errors`` summed over images; an image missing from ``preds`` is its ground-truth boxes with no
+    claims, as ``stages.metrics.score_records`` scores it."""
+    total = PairErrors()
+    for gt in gts:
+        total = total + pair_errors(gt, preds.get(gt.image) or boxes_only(gt), min_box_px, match_iou)
+    return total
