@@ -1,5 +1,6 @@
 """Fig. 5-style overlays of test images where the methods disagree: ground truth and each method side by
-side, so a reader sees at a glance which wheel each rule gave to which vehicle."""
+side, so a reader sees at a glance which wheel each rule gave to which vehicle (on ground-truth boxes, or end to
+end on the detector's boxes)."""
 
 from __future__ import annotations
 
@@ -11,14 +12,23 @@ from stages.metrics import score_image
 from stages.word_format import Record, load_image
 
 
-def disagreements(gts: list[Record], preds: dict[str, dict[str, Record]], limit: int) -> list[Record]:
-    """Ground-truth records where the methods' owner maps differ, most disagreeing methods first."""
+def wrong_wheels(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> tuple[int, int]:
+    """(evaluated wheels given a wrong owner, evaluated wheels) of one prediction (§7 wheel_acc's counts)."""
+    c = score_image(gt, pred, min_box_px, match_iou)
+    return c.wheels - c.wheels_correct, c.wheels
+
+
+def disagreements(gts: list[Record], preds: dict[str, dict[str, Record]], limit: int, min_box_px: float = 0.0,
+                  match_iou: float = 0.5) -> list[Record]:
+    """Ground-truth records where the methods' owner maps differ, the most wrong wheels over all methods first
+    (then the most distinct answers). The methods share each image's boxes, so their owner maps compare
+    directly; wrong wheels are scored against the ground truth through the box matching."""
     ranked = []
     for gt in gts:
-        owners = [frozenset(p[gt.image].owner_of().items()) for p in preds.values() if gt.image in p]
-        truth = frozenset(gt.owner_of().items())
-        n_distinct, n_wrong = len(set(owners)), sum(o != truth for o in owners)
+        answers = [p[gt.image] for p in preds.values() if gt.image in p]
+        n_distinct = len({frozenset(a.owner_of().items()) for a in answers})
         if n_distinct > 1:
+            n_wrong = sum(wrong_wheels(gt, a, min_box_px, match_iou)[0] for a in answers)
             ranked.append((-n_wrong, -n_distinct, gt.image, gt))
     return [r[-1] for r in sorted(ranked, key=lambda r: r[:3])[:limit]]
 
@@ -48,23 +58,24 @@ def _panel(rgb: np.ndarray, rec: Record, label: str, region: tuple[int, int, int
 
 
 def write_gallery(out_dir: Path, root: Path, gts: list[Record], preds: dict[str, dict[str, Record]],
-                  limit: int, min_box_px: float = 0.0) -> list[Path]:
-    """One PNG per chosen image, cropped to its objects: ground truth, then every method (titled with its
-    wrong wheels), tiled left to right and top to bottom."""
+                  limit: int, min_box_px: float = 0.0, match_iou: float = 0.5) -> list[Path]:
+    """One PNG per chosen image, cropped to its objects: ground truth, then every method on its boxes (titled
+    with its wrong wheels; on detected boxes, boxes matched to the ground truth at ``match_iou``), tiled left to
+    right and top to bottom."""
     import cv2
 
     from stages.overlay import contact_sheet
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for k, gt in enumerate(disagreements(gts, preds, limit)):
+    for k, gt in enumerate(disagreements(gts, preds, limit, min_box_px, match_iou)):
         rgb = load_image(root, gt)
         region = focus_region(gt)
         panels = [_panel(rgb, gt, "ground truth", region)]
         for name, p in preds.items():
             if gt.image in p:
-                c = score_image(gt, p[gt.image], min_box_px)
-                label = f"{name}: {c.wheels - c.wheels_correct}/{c.wheels} wheels wrong"
+                wrong, wheels = wrong_wheels(gt, p[gt.image], min_box_px, match_iou)
+                label = f"{name}: {wrong}/{wheels} wheels wrong"
                 panels.append(_panel(rgb, p[gt.image], label, region))
         wide = panels[0].shape[1] > 1.5 * panels[0].shape[0]
         sheet = contact_sheet(panels, cols=2 if wide else len(panels))  # wide crops stack in two columns

@@ -54,13 +54,13 @@ def build_methods(ctx: EvalContext) -> dict[str, object]:
 
 def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict, dict]:
     """Every method on every box source over ``ctx.dataset``'s test subsets: (results, pair errors by cause
-    ({boxes: {method: {subset: counts}}}), ground-truth-box predictions per method)."""
+    ({boxes: {method: {subset: counts}}}), predictions ({boxes: {method: {image: record}}}))."""
     ecfg, ds = ctx.cfg, ctx.dataset
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     subsets = {s: ds.subset(s) for s in SUBSETS}
     results: dict = {}
     errors: dict = {}
-    gt_predictions: dict[str, dict] = {}
+    predictions: dict[str, dict] = {}
     pred_dir.mkdir(parents=True, exist_ok=True)
     for boxes in ecfg.box_sources:
         if boxes not in BOX_SOURCES:
@@ -73,7 +73,7 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
         for rec in ds.subset("test"):  # a test image without any box of this source: nothing detected
             inputs_by_image.setdefault(rec.image, replace(rec, boxes=rec.boxes[:0].copy(), relations=[],
                                                           wheel_pairs=[]))
-        results[boxes], errors[boxes] = {}, {}
+        results[boxes], errors[boxes], predictions[boxes] = {}, {}, {}
         for name, method in methods.items():
             preds = {img: method.predict(rec) for img, rec in inputs_by_image.items()}
             write_records(predictions_file(pred_dir, boxes, name), list(preds.values()))
@@ -81,9 +81,8 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
                                     for s, recs in subsets.items()}
             errors[boxes][name] = {s: pair_errors_records(recs, preds, min_px, iou).as_dict()
                                    for s, recs in subsets.items()}
-            if boxes == "gt":
-                gt_predictions[name] = preds
-    return results, errors, gt_predictions
+            predictions[boxes][name] = preds
+    return results, errors, predictions
 
 
 def subset_sizes(ds, min_px: float) -> dict:
@@ -98,7 +97,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=priors)
     methods = build_methods(ctx)
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
-    results, errors, gt_predictions = score_dataset(ctx, methods, out_dir / "predictions")
+    results, errors, predictions = score_dataset(ctx, methods, out_dir / "predictions")
     sizes = subset_sizes(ds, min_px)
     report = {"results": results, "pair_errors": errors, "sizes": sizes, "notes": ctx.notes,
               "paper_table3": PAPER_TABLE3, "min_box_px": min_px, "match_iou": iou}
@@ -121,7 +120,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         for name in ("report.md", "report.json"):
             shutil.copy(out_dir / SHIFT_DIR / name, artifacts / f"shift_{name}")
     test = ds.subset("test")
-    write_gallery(artifacts / "gallery", ds.root, test, gt_predictions, int(ecfg.gallery_images), min_px)
+    # where the methods disagree, on ground-truth boxes and end to end (the detector's boxes, matched at match_iou)
+    for boxes, folder in (("gt", "gallery"), ("detected", "gallery_detected")):
+        if boxes in predictions:
+            write_gallery(artifacts / folder, ds.root, test, predictions[boxes], int(ecfg.gallery_images), min_px,
+                          iou)
     return {**headline_metrics(results), **metrics}
 
 

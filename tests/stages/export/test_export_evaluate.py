@@ -33,6 +33,9 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
             precision = 100.0 * e["found"] / (e["found"] + false) if e["found"] + false else 100.0
             assert recall == scores["pair_recall"] and precision == scores["pair_precision"]
     assert all(report["pair_errors"]["gt"]["deepword"][s]["wheel_missed"] == 0 for s in ("easy", "hard", "mixed"))
+    # disagreements drawn on both box sources, at most eval.gallery_images each (the toy detector's methods may agree)
+    assert 0 < len(list((evaluated / "artifacts" / "gallery").glob("*.png"))) <= 2
+    assert len(list((evaluated / "artifacts" / "gallery_detected").glob("*.png"))) <= 2
 
 
 def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_ground_truth_boxes(upstream, tmp_path):
