@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from stages.metrics import _UNMATCHED as UNMATCHED  # the scores' stand-in for a box matching no ground truth
 from stages.metrics import evaluated_wheel_ids, match_boxes
 from stages.word_format import WHEEL, Record, boxes_only
 
@@ -25,7 +26,6 @@ MISSED_CAUSES = {"wheel_missed": "wheel not detected", "vehicle_missed": "vehicl
                  "not_paired": "both detected, not paired"}
 FALSE_CAUSES = {"false_wheel": "wheel box matches no wheel", "false_vehicle": "vehicle box matches no vehicle",
                 "wrong_pair": "both boxes real, wrong pair"}
-UNMATCHED = "unmatched"  # stands for a predicted box that matched no ground-truth box: equal to no true id
 
 
 @dataclass
