@@ -16,7 +16,8 @@ What is exported:
   owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
   (``stages.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
-  throughout; ``dynamic``: batch and N dynamic.
+  throughout; ``dynamic``: batch and N dynamic. An ensemble (``relation.ensemble``) is exported as one graph
+  that runs every member and averages their outputs (``ShippedEnsemble``).
 - detector: ``DetectorGraph`` = CenterNet + ``ctdet_decode`` (peak extraction and top-K), dynamic batch;
   outputs the three heads and the (B, K, 6) detections, so a runtime needs no post-processing.
 """
@@ -33,6 +34,7 @@ from torch import nn
 from stages.export.channels_first import ChannelsFirstGraph
 from stages.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
 from stages.relation.inputs import node_tensor
+from stages.relation.model import RelationEnsemble, mean_outputs
 
 OPSET = 17
 
@@ -243,6 +245,23 @@ def _export(module: nn.Module, args: tuple, path: Path, input_names, output_name
     return path
 
 
+class ShippedEnsemble(nn.Module):
+    """``ShippedRelation`` of every member of a ``RelationEnsemble``, outputs averaged: one ONNX graph, so a
+    runtime reads an ensemble like a single network."""
+
+    def __init__(self, ensemble: nn.Module, real_only: bool):
+        super().__init__()
+        self.members = nn.ModuleList(ShippedRelation(m, real_only) for m in ensemble.members)
+
+    def forward(self, crops, coords, adj, cand):
+        return mean_outputs([m(crops, coords, adj, cand) for m in self.members])
+
+
+def shipped_relation(net: nn.Module, real_only: bool) -> nn.Module:
+    """What is exported for ``net``: ``ShippedRelation``, or ``ShippedEnsemble`` for a ``RelationEnsemble``."""
+    return ShippedEnsemble(net, real_only) if isinstance(net, RelationEnsemble) else ShippedRelation(net, real_only)
+
+
 def relation_example(n: int, input_size: int, batch: int = 2) -> tuple[torch.Tensor, ...]:
     """Tracing inputs: a fully connected graph of valid nodes, so no branch of the network is idle."""
     gen = torch.Generator().manual_seed(0)
@@ -261,7 +280,7 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
     # the dynamic variant is traced with fewer nodes than max_objects, so no size is baked in by accident
     n = max_objects if static else max(2, max_objects // 2 + 1)
     example = relation_example(n, input_size)
-    shipped = ShippedRelation(net.eval(), real_only=not static)
+    shipped = shipped_relation(net.eval(), real_only=not static)
     return _export(shipped, example, path, RELATION_INPUTS, RELATION_OUTPUTS, axes, annotate=name_object_dims)
 
 

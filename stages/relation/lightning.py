@@ -220,13 +220,18 @@ class RelationModule(L.LightningModule):
 
 
 @torch.no_grad()
-def score_split(module: RelationModule, split: SplitInputs, batch_size: int) -> dict[str, float]:
-    """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU."""
-    module = module.eval()
+def score_split(module: RelationModule | list[RelationModule], split: SplitInputs, batch_size: int) -> dict[str, float]:
+    """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU; of a list of
+    modules (an ensemble's members), deciding on the mean of their scores."""
+    from stages.relation.model import mean_outputs
+
+    modules = [m.eval() for m in (module if isinstance(module, list) else [module])]
     # Scored by one process (rank 0 after a DDP fit, the others have left): nothing to gather from other ranks.
     counts = RelationCounts(sync_on_compute=False)
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
-        pred_owner, pred_couple = module.decide(module(batch), batch)
+        with torch.no_grad():
+            outputs = mean_outputs([m(batch) for m in modules])
+        pred_owner, pred_couple = modules[0].decide(outputs, batch)
         counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
                                       batch["evaluated"]))
     return counts.compute()

@@ -277,6 +277,33 @@ class RelationNet(nn.Module):
         return self.relate(self.embed(x), adj, cand, x[:, :, 3:, 0, 0])
 
 
+class RelationEnsemble(nn.Module):
+    """Several RelationNets of one configuration, trained from different seeds, deciding on the mean of
+    their scores (``relation.ensemble``): the same inputs and outputs as one RelationNet. One network's
+    held-out accuracy swings with its training seed by more than the gaps the report compares; the mean
+    of a few is better than the typical member and as steady as the best (docs/domain.md)."""
+
+    def __init__(self, members: list[RelationNet]):
+        super().__init__()
+        if not members:
+            raise ValueError("RelationEnsemble needs at least one member network")
+        if len({m.cfg for m in members}) != 1:
+            raise ValueError("RelationEnsemble: the member networks differ in configuration")
+        self.members = nn.ModuleList(members)
+
+    @property
+    def cfg(self) -> ModelConfig:
+        return self.members[0].cfg
+
+    def forward(self, x: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
+        return mean_outputs([m(x, adj, cand) for m in self.members])
+
+
+def mean_outputs(outputs: list[tuple[torch.Tensor, ...]]) -> tuple[torch.Tensor, ...]:
+    """The element-wise mean of several networks' (owner, couple, front) outputs."""
+    return tuple(torch.stack(parts).mean(0) for parts in zip(*outputs, strict=True))
+
+
 def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
 

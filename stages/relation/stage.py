@@ -2,12 +2,14 @@
 Lightning, keep the best weights by val wheel_acc.
 
 Outputs in the stage directory:
-- ``relation.pt``   the best RelationNet state_dict (load with weights_only=True);
+- ``relation.pt``   the best RelationNet state_dict, or the RelationEnsemble's (``relation.ensemble`` > 1: its
+                    members trained from consecutive seeds); load with ``load_network``;
 - ``relation.json`` what the predictor and the export stage need to rebuild it: model and input
                     config, decoding, whether roles were learned, seed, metrics;
 - ``artifacts/relation_curves.png`` training curves (also in the stage's MLflow run when tracked).
-While training, ``inputs/<split>.npz`` (cropped graphs) and ``checkpoints/`` (``last.ckpt`` for resuming)
-live in the stage directory too; both are removed once the stage succeeds.
+While training, ``inputs/<split>.npz`` (cropped graphs), ``checkpoints/`` (``last.ckpt`` for resuming) and, for an
+ensemble, ``members/<k>/`` (each finished member, so an interrupted stage resumes after it) live in the stage
+directory too; all are removed once the stage succeeds.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import json
 import os
 import shutil
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from stages.checkpoints import best_and_latest, weight_averaging
@@ -68,25 +70,23 @@ def _tracking_logger():
 
 
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
-    import lightning as L
     import torch
-    from lightning.pytorch.callbacks import EarlyStopping
-    from omegaconf import OmegaConf
 
     from stages.priors.mixture import load_priors
-    from stages.relation.curves import CurveHistory, plot_curves
-    from stages.relation.lightning import RelationDataModule, RelationModule, score_split
-    from stages.relation.model import ModelConfig, count_parameters, size_mb
-    from stages.replicas import check_replicas_agree
+    from stages.relation.curves import plot_curves
+    from stages.relation.lightning import score_split
+    from stages.relation.model import ModelConfig, RelationEnsemble, count_parameters, size_mb
 
     route_lightning_logs()
     started = time.perf_counter()
     out_dir = Path(out_dir)
-    rel, tr = cfg.relation, cfg.trainer
+    rel = cfg.relation
     if int(rel.train.epochs) < 1:
         raise ValueError(f"relation.train.epochs must be >= 1, got {rel.train.epochs}")
+    n_members = int(rel.get("ensemble", 1))
+    if n_members < 1:
+        raise ValueError(f"relation.ensemble must be >= 1 (the number of networks), got {n_members}")
     torch.set_num_threads(int(rel.train.threads))
-    L.seed_everything(int(rel.train.seed), workers=True)
 
     ds = open_dataset(inputs["data"])
     priors = load_priors(inputs["priors"])
@@ -95,75 +95,158 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     check_object_counts(ds.records, in_cfg.max_objects)  # every split: export uses the same padding
     cache_dir = out_dir / "inputs"
     min_box_px = float(rel.val_min_box_px)
-    noise = DetectionNoise.from_cfg(rel.train.get("detection_noise"))
-    train_records = with_simulated_detections(_limit(ds.subset("train"), rel.train.limit_train_images), noise,
-                                              int(rel.train.seed), in_cfg.max_objects)
-    train = split_inputs("train", train_records, ds.root, in_cfg, priors, cache_dir, min_box_px)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
                        cache_dir, min_box_px)
-    if len(train) == 0 or len(val) == 0:
-        raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
+    seeds = [int(rel.train.seed) + k for k in range(n_members)]
+    members = [train_member(cfg, ds, priors, in_cfg, model_cfg, val, seed, out_dir, k if n_members > 1 else None)
+               for k, seed in enumerate(seeds)]
+    if members[0] is None:  # another rank of a DDP launch: rank 0 saves and reports
+        return {}
+    modules = [m.module.cpu() for m in members]
+    nets = [m.model.eval() for m in modules]
+    net = nets[0] if n_members == 1 else RelationEnsemble(nets).eval()
+    val_metrics = score_split(modules, val, int(rel.train.batch_size))
 
-    plain = OmegaConf.to_container(rel, resolve=True)
+    torch.save(net.state_dict(), out_dir / WEIGHTS_FILE)
+    history, best_epoch = members[0].history, members[0].best_epoch
+    metrics = {"relation.params": float(count_parameters(net)), "relation.size_mb": size_mb(net),
+               "relation.epochs": float(len(history)), "relation.train.images": float(members[0].train_images),
+               "relation.train.seconds": time.perf_counter() - started, "relation.bf16": float(members[0].bf16),
+               "relation.ensemble": float(n_members)}
+    metrics.update({f"relation.val.{k}": float(v) for k, v in val_metrics.items()})
+    if n_members > 1:  # each member alone, to see what the ensemble adds
+        for k, member in enumerate(members):
+            metrics.update({f"relation.member{k}.val.{name}": float(v) for name, v in member.val_metrics.items()
+                            if name in ("wheel_acc", "image_acc", "pair_f1")})
+    (out_dir / CONFIG_FILE).write_text(json.dumps({
+        "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain_config(rel)["decode"],
+        "has_roles": members[0].has_roles, "seed": seeds[0], "seeds": seeds, "ensemble": n_members,
+        "best_epoch": best_epoch, "best_epochs": [m.best_epoch for m in members], "metrics": metrics,
+        "curves": history, "member_curves": [m.history for m in members[1:]]}, indent=1))
+    # the first member's curves (an ensemble's others are in relation.json's member_curves)
+    plot_curves(history, out_dir / "artifacts" / "relation_curves.png")
+    shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry
+    shutil.rmtree(out_dir / "checkpoints", ignore_errors=True)  # relation.pt holds the best weights
+    shutil.rmtree(out_dir / "members", ignore_errors=True)
+    return metrics
+
+
+def plain_config(node) -> dict:
+    """A config node as plain, resolved Python containers (checkpoint- and JSON-safe)."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(node, resolve=True)
+
+
+@dataclass
+class TrainedMember:
+    """One trained network of the stage: its Lightning module (best weights loaded), training curves, best
+    epoch, val metrics, and what its training saw."""
+    module: object
+    history: list[dict]
+    best_epoch: int
+    val_metrics: dict[str, float]
+    train_images: int
+    bf16: bool
+    has_roles: bool
+
+
+def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInputs, seed: int, out_dir: Path,
+                 index: int | None) -> TrainedMember | None:
+    """Train one relation network from ``seed`` (initial weights, shuffling, flips, augmentation and the simulated
+    detections all follow it); ``index``: its place in an ensemble (its checkpoints and finished weights then
+    live under ``members/<index>``, so an interrupted ensemble resumes where it stopped), None for a lone
+    network. None on a DDP rank other than 0."""
+    import lightning as L
+    import torch
+    from lightning.pytorch.callbacks import EarlyStopping
+
+    from stages.relation.curves import CurveHistory
+    from stages.relation.lightning import RelationDataModule, RelationModule, score_split
+    from stages.replicas import check_replicas_agree
+
+    rel, tr = cfg.relation, cfg.trainer
+    plain = plain_config(rel)
     precision = resolve_precision(tr.precision, tr.accelerator)
     backbone_bf16 = precision == BF16  # the module autocasts its backbone itself; the rest trains in fp32
-    module = RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
-                            optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
-                            backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")))
+
+    def new_module():
+        return RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
+                              optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
+                              backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")))
+
+    member_dir = out_dir if index is None else out_dir / "members" / str(index)
+    done = member_dir / "member.pt"
+    if index is not None and done.is_file():  # finished before an interruption
+        saved = torch.load(done, map_location="cpu", weights_only=True)
+        module = new_module()
+        module.load_state_dict(saved["state_dict"])
+        return TrainedMember(module, json.loads(saved["history"]), int(saved["best_epoch"]),
+                             score_split(module, val, int(rel.train.batch_size)), int(saved["train_images"]),
+                             backbone_bf16, bool(saved["has_roles"]))
+
+    L.seed_everything(seed, workers=True)
+    noise = DetectionNoise.from_cfg(rel.train.get("detection_noise"))
+    train_records = with_simulated_detections(_limit(ds.subset("train"), rel.train.limit_train_images), noise,
+                                              seed, in_cfg.max_objects)
+    # the simulated detections follow the seed, so each member crops its own training graphs
+    train = split_inputs("train" if index is None else f"train_member{index}", train_records, ds.root, in_cfg,
+                         priors, out_dir / "inputs", float(rel.val_min_box_px))
+    if len(train) == 0 or len(val) == 0:
+        raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
+    module = new_module()
     augment = AugmentConfig.from_cfg(plain.get("augment"))
     box_warp = BoxWarpConfig.from_cfg(plain.get("box_warp"))
     data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment, box_warp)
-    ckpt_dir = out_dir / "checkpoints"
+    ckpt_dir = member_dir / "checkpoints"
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
+    label = "relation" if index is None else f"relation member {index + 1}/{int(rel.get('ensemble', 1))}"
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
-                 history, *lightning_progress("relation")]
+                 history, *lightning_progress(label)]
     callbacks = [*weight_averaging(float(rel.train.get("ema_decay", 0.0))), *callbacks]
-    logger = _tracking_logger()
+    logger = _tracking_logger() if index in (None, 0) else None  # one member's curves in the stage's run
     if logger is not None:  # the precision this machine trained in, beside the configured "auto"
         logger.log_hyperparams({"relation.precision": precision})
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
                         strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=FP32 if backbone_bf16 else precision,
                         logger=logger if logger is not None else False, callbacks=callbacks,
-                        deterministic=True, default_root_dir=out_dir, log_every_n_steps=10,
+                        deterministic=True, default_root_dir=member_dir, log_every_n_steps=10,
                         enable_model_summary=False)
     last = ckpt_dir / "last.ckpt"
     trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
     check_replicas_agree(module, "relation")
-    if not trainer.is_global_zero:  # another rank of a DDP launch: rank 0 saves and reports
-        return {}
+    if not trainer.is_global_zero:
+        return None
 
     if not history.rows and last.is_file():  # ddp_spawn: the epochs ran in child processes
         history.load_state_dict(torch.load(last, map_location="cpu", weights_only=True)["callbacks"][history.state_key])
     best = torch.load(checkpoint.best_model_path or last, map_location="cpu", weights_only=True)
     module.load_state_dict(best["state_dict"])
-    net = module.model.cpu().eval()
-    val_metrics = score_split(module.cpu(), val, int(rel.train.batch_size))
-
-    torch.save(net.state_dict(), out_dir / WEIGHTS_FILE)
-    metrics = {"relation.params": float(count_parameters(net)), "relation.size_mb": size_mb(net),
-               "relation.epochs": float(len(history.rows)), "relation.train.images": float(len(train)),
-               "relation.train.seconds": time.perf_counter() - started, "relation.bf16": float(backbone_bf16)}
-    metrics.update({f"relation.val.{k}": float(v) for k, v in val_metrics.items()})
-    has_roles = bool((train.role >= 0).any())
-    (out_dir / CONFIG_FILE).write_text(json.dumps({
-        "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain["decode"], "has_roles": has_roles,
-        "seed": int(rel.train.seed), "best_epoch": int(best.get("epoch", -1)), "metrics": metrics,
-        "curves": history.rows}, indent=1))
-    plot_curves(history.rows, out_dir / "artifacts" / "relation_curves.png")
-    shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry
-    shutil.rmtree(ckpt_dir, ignore_errors=True)  # relation.pt holds the best weights
-    return metrics
+    module = module.cpu()
+    alone = {} if index is None else score_split(module, val, int(rel.train.batch_size))  # a lone net: run() scores it
+    member = TrainedMember(module, history.rows, int(best.get("epoch", -1)), alone, len(train),
+                           backbone_bf16, bool((train.role >= 0).any()))
+    if index is not None:
+        torch.save({"state_dict": module.state_dict(), "history": json.dumps(member.history),
+                    "best_epoch": member.best_epoch, "train_images": member.train_images,
+                    "has_roles": member.has_roles}, done)
+        shutil.rmtree(ckpt_dir, ignore_errors=True)
+    return member
 
 
 def load_network(stage_dir: str | os.PathLike):
-    """The trained RelationNet (eval mode, CPU) and its relation.json."""
+    """The trained RelationNet, or RelationEnsemble (``relation.ensemble`` > 1), in eval mode on the CPU, and
+    its relation.json."""
     import torch
 
-    from stages.relation.model import ModelConfig, RelationNet
+    from stages.relation.model import ModelConfig, RelationEnsemble, RelationNet
 
     stage_dir = Path(stage_dir)
     meta = json.loads((stage_dir / CONFIG_FILE).read_text())
+    n_members = int(meta.get("ensemble", 1))
     net = RelationNet(ModelConfig(**meta["model"]))
+    if n_members > 1:
+        net = RelationEnsemble([RelationNet(ModelConfig(**meta["model"])) for _ in range(n_members)])
     net.load_state_dict(torch.load(stage_dir / WEIGHTS_FILE, map_location="cpu", weights_only=True))
     return net.eval(), meta

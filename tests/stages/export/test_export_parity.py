@@ -203,3 +203,21 @@ def test_detector_parity_is_relative_for_pixel_sizes_and_absolute_for_heatmap_an
     compare_detector(drifted, [heat, size, offset, detections], [heat + 2e-4, size, offset, detections], 0.3)
     with pytest.raises(ParityError, match="max \\|diff\\|"):
         drifted.check("detector", 1e-4, 99.9)
+
+
+@pytest.mark.parametrize("static", [True, False])
+def test_an_ensemble_exports_as_one_graph_averaging_its_members(tmp_path, static):
+    from stages.relation.model import RelationEnsemble
+
+    size = RELATION_MODEL["input_size"]
+    members = [small_net(0), small_net(1)]
+    ensemble = RelationEnsemble(members).eval()
+    path = export_relation(ensemble, tmp_path / "ensemble.onnx", size, 12, static=static)
+    graphs = random_graphs([5, 9], size, seed=4)
+    report = relation_parity(ensemble, ort_session(path, 1), graphs, size, 0.5, n=12 if static else None)
+    report.check("ensemble", 1e-4, 99.9)
+    assert report.decisions > 0
+    # the graph is the members' mean, not one member: member 0's own torch outputs disagree with it
+    with pytest.raises(ParityError):
+        relation_parity(members[0], ort_session(path, 1), graphs, size, 0.5, n=12 if static else None).check(
+            "member 0", 1e-4, 99.9)

@@ -217,3 +217,28 @@ def test_geometry_gate_is_an_opt_in_symmetric_gate_on_the_ownership_cosines():
     assert torch.allclose(owner, owner_plain * gate, atol=1e-6)            # cosine x gate
     with pytest.raises(ValueError, match="coords"):
         net.relate(h, adj, cand)
+
+
+def test_ensemble_decides_on_the_mean_of_its_members_scores():
+    from stages.relation.model import RelationEnsemble
+
+    cfg = ModelConfig(backbone="conv_fc", input_size=16, hidden=16, embed_dim=8, gat_hidden=8)
+    members = []
+    for seed in (0, 1):
+        torch.manual_seed(seed)
+        members.append(RelationNet(cfg).eval())
+    ensemble = RelationEnsemble(members).eval()
+    gen = torch.Generator().manual_seed(3)
+    x = torch.rand((2, 5, 7, 16, 16), generator=gen)
+    adj, cand = torch.rand((2, 5, 5), generator=gen), torch.ones((2, 5, 5))
+    with torch.no_grad():
+        alone = [m(x, adj, cand) for m in members]
+        together = ensemble(x, adj, cand)
+    assert ensemble.cfg == cfg and count_parameters(ensemble) == 2 * count_parameters(members[0])
+    for k in range(3):  # owner, couple, front
+        torch.testing.assert_close(together[k], (alone[0][k] + alone[1][k]) / 2)
+        assert not torch.allclose(together[k], alone[0][k])
+    with pytest.raises(ValueError, match="differ in configuration"):
+        RelationEnsemble([members[0], RelationNet(ModelConfig(backbone="conv_fc", input_size=16, hidden=8))])
+    with pytest.raises(ValueError, match="at least one"):
+        RelationEnsemble([])

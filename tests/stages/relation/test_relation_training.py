@@ -207,6 +207,7 @@ def _stage_cfg(**train):
     rel.max_objects = 16
     rel.model.hidden, rel.model.embed_dim = 32, 16
     rel.train.epochs, rel.train.batch_size = 2, 8
+    rel.ensemble = train.pop("ensemble", 1)  # one network unless a test asks for an ensemble
     rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
                                 "precision": "auto", "threads": 1})  # bf16 backbone where the CPU has it
@@ -260,6 +261,53 @@ def test_training_seed_changes_the_weights(tmp_path):
     assert weights[0].keys() == weights[1].keys()
     assert any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     assert [json.loads((d / "relation.json").read_text())["seed"] for d in (first, second)] == [0, 1]
+
+
+@pytest.mark.slow
+def test_an_ensemble_trains_its_members_from_consecutive_seeds_and_resumes(tmp_path, monkeypatch):
+    """relation.ensemble=2: member k is the network a lone training from seed + k gives (bit for bit);
+    relation.json records the seeds, the metrics hold each member's val scores beside the ensemble's, and
+    load_network returns the ensemble. A run stopped after its first member resumes without retraining it."""
+    import lightning as L
+
+    from stages.relation import stage
+    from stages.relation.model import RelationEnsemble
+
+    _write_dataset(tmp_path)
+    _, lone = _run_stage(tmp_path, "lone_seed_1", epochs=1, seed=1)
+    calls = {"fit": 0}
+    fit = L.Trainer.fit
+
+    def counted_fit(self, *args, **kwargs):
+        calls["fit"] += 1
+        if calls["fit"] == 2 and calls.get("fail", True):
+            raise KeyboardInterrupt("stopped during the second member")
+        return fit(self, *args, **kwargs)
+
+    monkeypatch.setattr(L.Trainer, "fit", counted_fit)
+    out = tmp_path / "ensemble"
+    out.mkdir()
+    cfg = _stage_cfg(epochs=1, ensemble=2)
+    inputs = {"data": tmp_path / "data", "priors": tmp_path / "priors"}
+    with pytest.raises(KeyboardInterrupt):
+        stage.run(cfg, inputs, out)
+    assert (out / "members" / "0" / "member.pt").is_file()
+    calls.update(fit=0, fail=False)
+    metrics = stage.run(cfg, inputs, out)
+    assert calls["fit"] == 1  # only the second member trained again
+
+    meta = json.loads((out / "relation.json").read_text())
+    assert meta["ensemble"] == 2 and meta["seeds"] == [0, 1] and meta["seed"] == 0
+    assert metrics["relation.ensemble"] == 2
+    assert {"relation.member0.val.wheel_acc", "relation.member1.val.wheel_acc", "relation.val.wheel_acc"} <= set(metrics)
+    assert sorted(p.name for p in out.iterdir()) == ["artifacts", "relation.json", "relation.pt"]
+    net, _ = stage.load_network(out)
+    assert isinstance(net, RelationEnsemble) and len(net.members) == 2
+    alone = torch.load(lone / "relation.pt", weights_only=True)
+    member1 = net.members[1].state_dict()
+    assert all(torch.equal(alone[k], member1[k]) for k in alone)  # member 1 = the lone network of seed 1
+    member0 = net.members[0].state_dict()
+    assert any(not torch.equal(member0[k], member1[k]) for k in member0)
 
 
 @pytest.mark.slow
