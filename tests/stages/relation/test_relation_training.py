@@ -273,7 +273,7 @@ def test_an_ensemble_trains_its_members_from_consecutive_seeds_and_resumes(tmp_p
     from stages.relation import stage
     from stages.relation.model import RelationEnsemble
 
-    _write_dataset(tmp_path)
+    recs = _write_dataset(tmp_path)
     _, lone = _run_stage(tmp_path, "lone_seed_1", epochs=1, seed=1)
     calls = {"fit": 0}
     fit = L.Trainer.fit
@@ -308,6 +308,11 @@ def test_an_ensemble_trains_its_members_from_consecutive_seeds_and_resumes(tmp_p
     assert all(torch.equal(alone[k], member1[k]) for k in alone)  # member 1 = the lone network of seed 1
     member0 = net.members[0].state_dict()
     assert any(not torch.equal(member0[k], member1[k]) for k in member0)
+    from stages.relation.predict import RelationPredictor  # the torch predictor runs the ensemble too
+
+    rec = recs[-1]
+    pred = RelationPredictor.from_dirs(out, tmp_path / "priors").predict(rec, rd.render(rec))
+    assert np.array_equal(pred.boxes, rec.boxes) and len({w for _, w, _ in pred.relations}) == len(pred.relations)
 
 
 @pytest.mark.slow
