@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pathlib
 import pickle
+from pathlib import Path
 
 import pytest
 import torch
@@ -85,7 +86,9 @@ def test_poisoned_resume_checkpoint_is_refused_by_weights_only_loading(tmp_path,
     cfg = compose_cfg(tiny, cache, tracking_uri, "pipeline.until=relation")
     key = key_parts(load_stages(cfg)["relation"], cfg, input_keys).key
     marker = tmp_path / "code_ran"
-    ckpt = cache / "relation" / f".partial-{key}" / "out" / "checkpoints" / "last.ckpt"
+    # the smoke profile trains an ensemble: its first member's checkpoint is the one a resume loads first
+    member = Path("members", "0") if int(cfg.relation.ensemble) > 1 else Path()
+    ckpt = cache / "relation" / f".partial-{key}" / "out" / member / "checkpoints" / "last.ckpt"
     ckpt.parent.mkdir(parents=True)
     torch.save({"state_dict": _Exploit(marker), "epoch": 0, "global_step": 1}, ckpt)
     probe = tmp_path / "probe.ckpt"  # the premise: loading it unsafely runs code

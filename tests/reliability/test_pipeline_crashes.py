@@ -65,7 +65,8 @@ def test_sigkill_during_relation_training_leaves_no_entry_and_rerun_resumes_from
         proc = subprocess.Popen(pipeline_command(data, tmp_path / "cache", *extra), cwd=tmp_path,
                                 env=pipeline_env(tmp_path), stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        ckpt = wait_for(frozen_with_checkpoint("relation/.partial-*/out/checkpoints/last.ckpt", tmp_path / "cache",
+        # out/checkpoints for one network, out/members/<k>/checkpoints for an ensemble (the smoke profile's)
+        ckpt = wait_for(frozen_with_checkpoint("relation/.partial-*/out/**/checkpoints/last.ckpt", tmp_path / "cache",
                                                proc), 300, proc, log)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -82,7 +83,7 @@ def test_sigkill_during_relation_training_leaves_no_entry_and_rerun_resumes_from
     assert "Restoring states from the checkpoint path at" in out and str(ckpt.name) in out
     entries = complete_entries(tmp_path / "cache", "relation")
     assert len(entries) == 1 and not list((tmp_path / "cache" / "relation").glob(".partial-*"))
-    assert not (entries[0] / "out" / "checkpoints").exists()
+    assert not (entries[0] / "out" / "checkpoints").exists() and not (entries[0] / "out" / "members").exists()
 
 
 def test_two_pipelines_at_once_compute_each_stage_once_and_both_finish(tmp_path):
