@@ -229,9 +229,7 @@ def score_split(module: RelationModule | list[RelationModule], split: SplitInput
     # Scored by one process (rank 0 after a DDP fit, the others have left): nothing to gather from other ranks.
     counts = RelationCounts(sync_on_compute=False)
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
-        with torch.no_grad():
-            outputs = mean_outputs([m(batch) for m in modules])
-        pred_owner, pred_couple = modules[0].decide(outputs, batch)
+        pred_owner, pred_couple = modules[0].decide(mean_outputs([m(batch) for m in modules]), batch)
         counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
                                       batch["evaluated"]))
     return counts.compute()

@@ -102,7 +102,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                for k, seed in enumerate(seeds)]
     if members[0] is None:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
-    modules = [m.module.cpu() for m in members]
+    modules = [m.module for m in members]  # on the CPU already (train_member)
     nets = [m.model.eval() for m in modules]
     net = nets[0] if n_members == 1 else RelationEnsemble(nets).eval()
     val_metrics = score_split(modules, val, int(rel.train.batch_size))
