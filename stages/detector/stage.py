@@ -8,6 +8,7 @@ Outputs (paths relative to the stage directory):
   logs/metrics.csv                training curves (also in the stage's MLflow run when tracked)
   artifacts/detections_test.png   detections drawn on test images; artifacts/curves.png
   artifacts/misses_test.md        recall by box size, occlusion and border truncation (stages/detector/misses.py)
+                                  and what each kind of false positive costs AP@0.5 (stages/detector/ap_errors.py)
   metrics.json                    the metrics returned to the engine
 """
 
@@ -76,6 +77,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     import torch
 
     from stages.checkpoints import best_and_latest, weight_averaging
+    from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
     from stages.detector.curves import plot_curves
     from stages.detector.lightning import CenterNetModule, DetectorDataModule
     from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
@@ -149,6 +151,9 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     misses = recall_breakdown(splits["test"], predictions["test"], mcfg["class_names"], det["render_min_score"])
     write_breakdown(artifacts / "misses_test.md", misses, det["render_min_score"], "test")
     metrics |= breakdown_metrics(misses, "test")
+    errors = ap_error_breakdown(splits["test"], predictions["test"], mcfg["class_names"], det["ap_min_box_px"])
+    append_breakdown(artifacts / "misses_test.md", errors, "test", det["ap_min_box_px"])
+    metrics |= error_metrics(errors, "test")
     shown = slice(0, det["render_images"])
     write_detection_grid(artifacts / "detections_test.png", dataset.root, predictions["test"][shown],
                          splits["test"][shown], min_score=det["render_min_score"])

@@ -132,6 +132,8 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     """Every row on the held-out domain's test set, baselines fitted on the in-domain train split as for
     the in-domain rows: ``eval.shift.<boxes>.<method>.<subset>.<metric>`` and, with detections,
     ``detector.shift.{ap50,ap}.<class>``; ``out_dir`` gets the predictions and report.md/json."""
+    from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
+    from stages.detector.model import CLASS_NAMES
     from stages.detector.stage import ap_metrics
 
     shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
@@ -148,4 +150,7 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     detections = detections_for_ap(shift_ctx)  # every score: the detector stage's AP protocol
     if detections is not None:
         metrics |= ap_metrics(detections, heldout.subset("test"), "shift", min_px)
+        breakdown = ap_error_breakdown(heldout.subset("test"), detections, CLASS_NAMES, min_px)
+        append_breakdown(out_dir / "report.md", breakdown, "held-out test", min_px)
+        metrics |= error_metrics(breakdown, "shift")
     return metrics

@@ -94,6 +94,9 @@ def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path, monkeypatch, native_b
     assert (out / "checkpoints" / "last.ckpt").is_file() and (out / "checkpoints" / "best.ckpt").is_file()
     assert (out / "artifacts" / "detections_test.png").stat().st_size > 1000
     assert (out / "artifacts" / "curves.png").is_file()
+    assert "## Where AP@0.5 goes (test split)" in (out / "artifacts" / "misses_test.md").read_text()
+    for name in ("vehicle", "wheel"):
+        assert metrics[f"detector.test.ap50_no_false_positives.{name}"] >= metrics[f"detector.test.ap50.{name}"]
     net, config = load_detector(out)
     assert config["input_width"] == 128 and not net.training
 
