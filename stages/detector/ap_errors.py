@@ -147,10 +147,11 @@ def error_metrics(breakdown: dict[str, dict[str, float]], split: str) -> dict[st
             for key, value in row.items() if key == "max_recall" or key.startswith("ap50_")}
 
 
-def breakdown_markdown(breakdown: dict[str, dict[str, float]], split: str, min_box_px: float) -> str:
-    """The breakdown as a Markdown section: one row per oracle, one column pair per class."""
+def breakdown_markdown(breakdown: dict[str, dict[str, float]], images: str, min_box_px: float) -> str:
+    """The breakdown as a Markdown section titled by which ``images`` it is of (``"test split"``): one row per
+    oracle, one column pair per class."""
     names = list(breakdown)
-    lines = [f"## Where AP@0.5 goes ({split} split)", "",
+    lines = [f"## Where AP@0.5 goes ({images})", "",
              "AP@0.5 if the detector had not made one kind of false positive, as TIDE (Bolya et al. 2020) measures it "
              f"(ground truth under {min_box_px:g} px ignored, as in the reported AP). Background: IoU < 0.1 with every "
              "box of its class; duplicate: a box another detection already found; loose: IoU 0.1-0.5 with a box. "
@@ -172,8 +173,8 @@ def breakdown_markdown(breakdown: dict[str, dict[str, float]], split: str, min_b
     return "\n".join(lines) + "\n"
 
 
-def append_breakdown(path: str | Path, breakdown: dict[str, dict[str, float]], split: str, min_box_px: float) -> None:
+def append_breakdown(path: str | Path, breakdown: dict[str, dict[str, float]], images: str, min_box_px: float) -> None:
     """Add the section to the end of ``path`` (the misses report)."""
     path = Path(path)
     text = path.read_text() if path.is_file() else ""
-    path.write_text(text + ("\n" if text else "") + breakdown_markdown(breakdown, split, min_box_px))
+    path.write_text(text + ("\n" if text else "") + breakdown_markdown(breakdown, images, min_box_px))

@@ -152,7 +152,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     write_breakdown(artifacts / "misses_test.md", misses, det["render_min_score"], "test")
     metrics |= breakdown_metrics(misses, "test")
     errors = ap_error_breakdown(splits["test"], predictions["test"], mcfg["class_names"], det["ap_min_box_px"])
-    append_breakdown(artifacts / "misses_test.md", errors, "test", det["ap_min_box_px"])
+    append_breakdown(artifacts / "misses_test.md", errors, "test split", det["ap_min_box_px"])
     metrics |= error_metrics(errors, "test")
     shown = slice(0, det["render_images"])
     write_detection_grid(artifacts / "detections_test.png", dataset.root, predictions["test"][shown],

@@ -1,17 +1,23 @@
 """Score a WORD-format predictions file against a whole WORD-format dataset (docs/design.md §7 definitions).
 
-    python -m stages.evaluate.score --gt ROOT --pred FILE [--json OUT] [--min-box-px 8] [--seed 42]
+    python -m stages.evaluate.score --gt ROOT --pred FILE [--detections FILE] [--json OUT] [--min-box-px 8]
 
 ROOT is a dataset directory (``labels.jsonl`` + images) or a data stage's output (``dataset.json``).
 All its images are scored, split into easy / hard / mixed by ``word_format.difficulty_subsets``. An image
 missing from the predictions counts as predicted with no relations; a prediction for an image the
 dataset does not have, or made at another resolution (its width/height differ from the ground truth's:
 its boxes would be in other pixel units), is an error. Bad input exits with code 2 and a file:line:field message.
+
+``--detections FILE`` (the ``detections.jsonl`` that ``deepword infer --detect`` writes: every detection, not
+only those at the operating point) adds the detector's COCO AP per class on the whole dataset, ground truth
+under ``--min-box-px`` ignored as in the detector stage, and where its AP@0.5 goes
+(``stages.detector.ap_errors``). It needs pycocotools, as the pipeline does.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -19,7 +25,9 @@ from pathlib import Path
 from stages.evaluate.pair_errors import pair_errors_records
 from stages.evaluate.report import render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
-from stages.word_format import LABELS_FILE, DatasetError, Record, difficulty_subsets, read_records
+from stages.word_format import LABELS_FILE, DatasetError, Record, boxes_only, difficulty_subsets, read_records
+
+CLASS_NAMES = ("vehicle", "wheel")  # the WORD format's class ids 0 and 1
 
 
 class ScoreError(ValueError):
@@ -58,7 +66,7 @@ def load_predictions(path: Path, root: Path, gts: dict[str, Record]) -> dict[str
 
 
 def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, seed: int,
-          max_easy_vehicles: int = 3) -> dict:
+          max_easy_vehicles: int = 3, detections_path: Path | None = None) -> dict:
     root, gts = load_ground_truth(gt_root)
     by_image = {r.image: r for r in gts}
     preds = load_predictions(pred_path, root, by_image)
@@ -68,15 +76,47 @@ def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, s
     sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
              for s, recs in subsets.items()}
     missing = len(set(by_image) - set(preds))
-    return {"results": results, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
-            "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
-            "match_iou": match_iou}
+    out = {"results": results, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
+           "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
+           "match_iou": match_iou}
+    if detections_path is not None:
+        out["detector"] = detector_scores(detections_path, root, gts, min_box_px)
+    return out
+
+
+def detector_scores(path: Path, root: Path, gts: list[Record], min_box_px: float) -> dict:
+    """AP per class and where AP@0.5 goes, of every detection in ``path`` against every ground-truth image
+    (an image without a detection record counts as detecting nothing)."""
+    from stages.detector.ap_errors import ap_error_breakdown
+    from stages.detector.metrics import coco_average_precision
+
+    detections = load_predictions(path, root, {r.image: r for r in gts})
+    truth = [boxes_only(r) for r in gts]
+    found = [detections.get(r.image) or dataclasses.replace(r, boxes=r.boxes[:0]) for r in truth]
+    ap = coco_average_precision(found, truth, CLASS_NAMES, min_box_px)
+    return {"detections": str(path), "ap": ap, "breakdown": ap_error_breakdown(truth, found, CLASS_NAMES, min_box_px),
+            "missing_images": len(set(r.image for r in gts) - set(detections))}
+
+
+def detector_markdown(scores: dict, min_box_px: float) -> str:
+    from stages.detector.ap_errors import breakdown_markdown
+
+    ap = scores["ap"]
+    lines = ["## Detector", "",
+             f"Every detection of {scores['detections']} ({scores['missing_images']} images without one), ground "
+             f"truth under {min_box_px:g} px ignored:", "",
+             "| | " + " | ".join(ap) + " |", "|---|" + "---:|" * len(ap),
+             "| AP@0.5 | " + " | ".join(f"{v['ap50']:.1f}" for v in ap.values()) + " |",
+             "| AP@[.5:.95] | " + " | ".join(f"{v['ap']:.1f}" for v in ap.values()) + " |", ""]
+    return "\n".join(lines) + "\n" + breakdown_markdown(scores["breakdown"], "whole dataset", min_box_px)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="deepword score", description=__doc__.split("\n\n")[0])
     parser.add_argument("--gt", required=True, type=Path, help="WORD-style dataset root (or data stage output)")
     parser.add_argument("--pred", required=True, type=Path, help="predictions in WORD format (labels.jsonl style)")
+    parser.add_argument("--detections", type=Path, help="every detection (deepword infer --detect's "
+                        "detections.jsonl): adds the detector's AP per class and where it goes")
     parser.add_argument("--json", type=Path, help="also write the results as JSON here")
     parser.add_argument("--min-box-px", type=float, default=8.0, help="evaluated wheels' minimum shorter side")
     parser.add_argument("--match-iou", type=float, default=0.5, help="IoU for matching predicted to true boxes")
@@ -85,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name", default="submitted", help="row name in the printed table")
     args = parser.parse_args(argv)
     try:
-        out = score(args.gt, args.pred, args.min_box_px, args.match_iou, args.seed, args.max_easy_vehicles)
+        out = score(args.gt, args.pred, args.min_box_px, args.match_iou, args.seed, args.max_easy_vehicles,
+                    args.detections)
     except (DatasetError, ScoreError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -93,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     print(render_markdown({"predictions": {args.name: out["results"]}}, out["sizes"], notes,
                           f"Scores of {args.pred} against {args.gt}",
                           errors={"predictions": {args.name: out["pair_errors"]}}))
+    if "detector" in out:
+        print(detector_markdown(out["detector"], args.min_box_px))
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

@@ -151,6 +151,6 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     if detections is not None:
         metrics |= ap_metrics(detections, heldout.subset("test"), "shift", min_px)
         breakdown = ap_error_breakdown(heldout.subset("test"), detections, CLASS_NAMES, min_px)
-        append_breakdown(out_dir / "report.md", breakdown, "held-out test", min_px)
+        append_breakdown(out_dir / "report.md", breakdown, "held-out test split", min_px)
         metrics |= error_metrics(breakdown, "shift")
     return metrics

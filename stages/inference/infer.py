@@ -16,8 +16,11 @@ run whose artifacts to use (default: the newest finished one; see ``stages.infer
 
 Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
 the dataset root, or to the images' common folder) and, per image, a Fig. 5-style overlay
-``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``). Score a dataset's predictions with
-``deepword score --gt ROOT --pred DIR/labels.jsonl``. Bad input exits with code 2 and a message naming the
+``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``). Wherever the detector runs it also
+writes ``DIR/detections.jsonl``: every detection down to its score threshold, without relations (the
+operating point cuts them for the relations; average precision needs them all). Score a dataset's
+predictions with ``deepword score --gt ROOT --pred DIR/labels.jsonl [--detections DIR/detections.jsonl]``
+(the second adds the detector's AP and where it goes). Bad input exits with code 2 and a message naming the
 file (and line and field for a labels file), without a traceback.
 """
 
@@ -37,6 +40,7 @@ from stages.word_format import CAMERAS, DatasetError, Record, boxes_only, write_
 BASELINES = ("logic", "logic_plus", "prior")
 METHODS = (*METHOD_VARIANTS, *BASELINES)
 PREDICTIONS_FILE = "labels.jsonl"
+DETECTIONS_FILE = "detections.jsonl"
 OVERLAY_DIR = "overlays"
 
 
@@ -185,15 +189,19 @@ def infer(args) -> list[Record]:
             pixels[rec.image] = load_image(root, rec)
         return pixels[rec.image]
 
+    args.out.mkdir(parents=True, exist_ok=True)
     if detect:
         from stages.inference.runtime import OnnxDetector
 
         detector = OnnxDetector(dirs["export"], args.threads)
-        records = [detector.detect(rgb_of(r), r) for r in records]
+        every = [detector.detect_every(rgb_of(r), r) for r in records]
+        # every detection down to the detector's score threshold: what AP integrates over (deepword score
+        # --detections); the relations see only those at the operating point
+        write_records(args.out / DETECTIONS_FILE, every)
+        records = [detector.keep_operating_point(r) for r in every]
     method = build_method(args.method, dirs, root, args.threads, rgb_of)
     preds = [method.predict(r) for r in records]
     preds, views = add_footprints(args, dirs, preds)
-    args.out.mkdir(parents=True, exist_ok=True)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
         write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))

@@ -60,7 +60,7 @@ def test_metrics_and_report(tmp_path):
     assert not any(".n_" in k for k in metrics)
     report = tmp_path / "misses.md"
     report.write_text("# What the detector misses\n")
-    append_breakdown(report, out, "test", 8)
+    append_breakdown(report, out, "test split", 8)
     text = report.read_text()
     assert text.startswith("# What the detector misses\n") and "## Where AP@0.5 goes (test split)" in text
     assert "| ground truth found at any score (max recall) | 50.0 % | – | 100.0 % | – |" in text

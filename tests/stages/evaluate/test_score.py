@@ -53,6 +53,42 @@ def test_pair_errors_are_printed_and_written(data, tmp_path, capsys):
                                                            "false_vehicle", "wrong_pair"))
 
 
+def test_detections_add_the_detectors_ap_and_where_it_goes(data, tmp_path, capsys):
+    recs = read_records(data / "labels.jsonl")
+    # every box found, but the first image's first box shrunk to a quarter (a loose box) and one image not detected
+    loose = []
+    for k, r in enumerate(recs[1:]):
+        boxes = r.boxes.copy()
+        boxes[:, 4] = 0.9
+        if k == 0:
+            x1, y1, x2, y2 = boxes[0, :4]
+            boxes[0, 2:4] = (x1 + (x2 - x1) / 2, y1 + (y2 - y1) / 2)
+        loose.append(replace(r, boxes=boxes, relations=[], wheel_pairs=[]))
+    write_records(tmp_path / "detections.jsonl", loose)
+    out = tmp_path / "scores.json"
+    argv = ["--gt", str(data), "--pred", str(data / "labels.jsonl"), "--detections", str(tmp_path / "detections.jsonl"),
+            "--json", str(out), "--min-box-px", "0"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "## Detector" in printed and "## Where AP@0.5 goes (whole dataset)" in printed
+    detector = json.loads(out.read_text())["detector"]
+    assert detector["missing_images"] == 1
+    cls = "vehicle" if recs[1].boxes[0, 5] == 0 else "wheel"
+    assert detector["breakdown"][cls]["n_loose"] == 1
+    assert detector["breakdown"][cls]["ap50_loose_placed"] > detector["ap"][cls]["ap50"]
+    assert all(0 < v["ap50"] < 100 for v in detector["ap"].values())   # the undetected image's boxes are missed
+
+
+def test_detections_must_be_of_the_datasets_images(data, tmp_path, capsys):
+    lines = (data / "labels.jsonl").read_text().splitlines()
+    obj = json.loads(lines[0])
+    obj["width"] += 1
+    (tmp_path / "detections.jsonl").write_text(json.dumps(obj) + "\n")
+    argv = ["--gt", str(data), "--pred", str(data / "labels.jsonl"), "--detections", str(tmp_path / "detections.jsonl")]
+    assert main(argv) == 2
+    assert "detections.jsonl:1: field 'width'" in capsys.readouterr().err
+
+
 def test_unknown_image_is_an_error(data, tmp_path, capsys):
     lines = (data / "labels.jsonl").read_text().splitlines()
     obj = json.loads(lines[0])

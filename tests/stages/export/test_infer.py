@@ -48,13 +48,24 @@ def test_infer_on_a_dataset_matches_the_evaluate_rows(upstream, exported, evalua
         assert drawn.shape == original.shape and np.abs(drawn.astype(int) - original).sum() > 0  # boxes drawn
 
 
-def test_infer_with_detected_boxes_on_a_dataset(upstream, exported, tmp_path):
+def test_infer_with_detected_boxes_on_a_dataset(upstream, exported, tmp_path, capsys):
     argv = ["infer", "--dataset", str(upstream["data"]), "--detect", "--out", str(tmp_path), "--export", str(exported[0])]
     assert deepword(argv) == 0
     preds = read_records(tmp_path / "labels.jsonl", root=upstream["data"], allow_empty=True)
     gts = read_records(upstream["data"] / "labels.jsonl")
     assert len(preds) == len(gts)
     assert all(len(p.boxes) == 0 or (p.scores < 1).all() for p in preds)  # detector scores, not the annotation's
+    # every detection beside them, for AP: the relations' boxes are those at the operating point among them
+    every = {d.image: d for d in read_records(tmp_path / "detections.jsonl", root=upstream["data"], allow_empty=True)}
+    assert set(every) == {p.image for p in preds}
+    assert all(d.relations == [] for d in every.values())
+    assert sum(len(d.boxes) for d in every.values()) >= sum(len(p.boxes) for p in preds)
+    for p in preds:
+        kept = {tuple(np.round(b[:5], 2)) for b in every[p.image].boxes}
+        assert all(tuple(np.round(b[:5], 2)) in kept for b in p.boxes)
+    assert deepword(["score", "--gt", str(upstream["data"]), "--pred", str(tmp_path / "labels.jsonl"),
+                     "--detections", str(tmp_path / "detections.jsonl")]) == 0
+    assert "## Where AP@0.5 goes (whole dataset)" in capsys.readouterr().out
 
 
 def test_infer_path_never_imports_torch(exported, generated_images, tmp_path):
