@@ -27,8 +27,6 @@ from stages.evaluate.report import render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.word_format import LABELS_FILE, DatasetError, Record, boxes_only, difficulty_subsets, read_records
 
-CLASS_NAMES = ("vehicle", "wheel")  # the WORD format's class ids 0 and 1
-
 
 class ScoreError(ValueError):
     """A usage problem that is not located in a file line."""
@@ -89,10 +87,12 @@ def detector_scores(path: Path, root: Path, gts: list[Record], min_box_px: float
     (an image without a detection record counts as detecting nothing)."""
     from stages.detector.ap_errors import ap_error_breakdown
     from stages.detector.metrics import coco_average_precision
+    from stages.detector.model import CLASS_NAMES  # torch, imported only for --detections
 
     detections = load_predictions(path, root, {r.image: r for r in gts})
     truth = [boxes_only(r) for r in gts]
-    found = [detections.get(r.image) or dataclasses.replace(r, boxes=r.boxes[:0]) for r in truth]
+    found = [detections[r.image] if r.image in detections else dataclasses.replace(r, boxes=r.boxes[:0])
+             for r in truth]
     ap = coco_average_precision(found, truth, CLASS_NAMES, min_box_px)
     return {"detections": str(path), "ap": ap, "breakdown": ap_error_breakdown(truth, found, CLASS_NAMES, min_box_px),
             "missing_images": len(set(r.image for r in gts) - set(detections))}
