@@ -92,7 +92,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     out_dir = Path(out_dir)
     det = OmegaConf.to_container(cfg.detector, resolve=True)
     trainer_cfg = OmegaConf.to_container(cfg.trainer, resolve=True) if "trainer" in cfg else {}
-    L.seed_everything(int(cfg.seed), workers=True)
+    L.seed_everything(int(cfg.seed if det.get("seed") is None else det["seed"]), workers=True)
     torch.set_num_threads(_threads(trainer_cfg))
 
     dataset = open_dataset(inputs["data"])

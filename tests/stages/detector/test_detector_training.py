@@ -117,3 +117,23 @@ def test_batch_normalisation_in_torch_equals_the_per_image_numpy_one():
     x = batch_to_input(torch.from_numpy(images), torch.channels_last)
     assert x.shape == (3, 3, 16, 24) and x.is_contiguous(memory_format=torch.channels_last)
     np.testing.assert_allclose(x.numpy(), np.stack([normalise(im) for im in images]), atol=1e-6)
+
+
+def test_the_detector_seed_is_the_training_draw(toy_dataset, tmp_path, monkeypatch):
+    """detector.seed null trains as the run's seed does; another detector.seed draws other weights from the same data."""
+    from stages import precision
+    from stages.detector.stage import run
+
+    monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: False)  # fp32: the quickest path here
+
+    def weights(seed: int | None) -> dict:
+        cfg = OmegaConf.create({"detector": detector_cfg(epochs=1, seed=seed, augment={"crop": [64, 64]}), "seed": 3,
+                                "trainer": {"threads": 1, "precision": "32-true"}})
+        out = tmp_path / f"seed_{seed}"
+        out.mkdir()
+        run(cfg, {"data": toy_dataset}, out)
+        return load_detector(out)[0].state_dict()
+
+    default, same, other = weights(None), weights(3), weights(4)
+    assert all(torch.equal(default[k], same[k]) for k in default)
+    assert not all(torch.equal(default[k], other[k]) for k in default)
