@@ -27,6 +27,7 @@ import numpy as np
 
 from stages.detector.metrics import coco_average_precision
 from stages.geometry import pairwise_intersection, pairwise_iou
+from stages.metrics import match_boxes
 from stages.word_format import Record
 
 KINDS = ("background", "duplicate", "loose")
@@ -53,25 +54,30 @@ def classify(truth: Record, prediction: Record, min_box_px: float) -> ImageError
     """Classify ``prediction``'s detections against ``truth`` (see the module doc)."""
     n = len(prediction.boxes)
     kind, place_on = ["tp"] * n, np.full(n, -1)
-    gt_xyxy, det_xyxy = truth.xyxy, prediction.xyxy
-    sides = (gt_xyxy[:, 2:] - gt_xyxy[:, :2]).min(axis=1) if len(gt_xyxy) else np.zeros(0)
+    sides = (truth.xyxy[:, 2:] - truth.xyxy[:, :2]).min(axis=1) if len(truth.boxes) else np.zeros(0)
     evaluated_gt = sides >= min_box_px
+    # the evaluation's own matching (per class, greedily by score, IoU >= 0.5) against the evaluated boxes only
+    to_gt = match_boxes(dataclasses.replace(truth, boxes=truth.boxes[evaluated_gt]), prediction, MATCH_IOU)
+    row_of_id = {int(b): k for k, b in enumerate(truth.box_ids)}
+    taken = {row_of_id[g] for g in to_gt.values()}  # rows of the ground truth some detection found
     found, evaluated = {}, {}
     for cls in np.unique(np.concatenate([truth.class_ids, prediction.class_ids])).astype(int):
         dets = np.flatnonzero(prediction.class_ids == cls)
         gts = np.flatnonzero((truth.class_ids == cls) & evaluated_gt)
         ignored = np.flatnonzero((truth.class_ids == cls) & ~evaluated_gt)
-        iou = pairwise_iou(det_xyxy[dets], gt_xyxy[gts]) if len(gts) else np.zeros((len(dets), 0))
+        found[int(cls)], evaluated[int(cls)] = sum(int(g) in taken for g in gts), len(gts)
+        iou = pairwise_iou(prediction.xyxy[dets], truth.xyxy[gts]) if len(gts) else np.zeros((len(dets), 0))
         # an ignore region absorbs a detection mostly inside it, as COCO's crowd regions (stages.detector.metrics)
-        det_area = np.maximum(np.prod(det_xyxy[dets, 2:] - det_xyxy[dets, :2], axis=1), 1e-9)
-        inside_ignored = (pairwise_intersection(det_xyxy[dets], gt_xyxy[ignored]).max(axis=1) / det_area
+        det_area = np.maximum(np.prod(prediction.xyxy[dets, 2:] - prediction.xyxy[dets, :2], axis=1), 1e-9)
+        inside_ignored = (pairwise_intersection(prediction.xyxy[dets], truth.xyxy[ignored]).max(axis=1) / det_area
                           if len(ignored) else np.zeros(len(dets)))
-        taken = np.zeros(len(gts), dtype=bool)
-        for row in np.argsort(-prediction.scores[dets], kind="stable"):
-            i = int(dets[row])
-            free = np.where(taken, -1.0, iou[row])
-            if len(gts) and free.max() >= MATCH_IOU:
-                taken[int(np.argmax(free))] = True
+        # the greedy order: a loose detection is placed on a box only if no higher-scoring detection took it
+        rank = np.empty(len(dets), dtype=int)
+        rank[np.argsort(-prediction.scores[dets], kind="stable")] = np.arange(len(dets))
+        taken_at = {row_of_id[to_gt[int(prediction.box_ids[i])]]: rank[row] for row, i in enumerate(dets)
+                    if int(prediction.box_ids[i]) in to_gt}
+        for row, i in enumerate(dets):
+            if int(prediction.box_ids[i]) in to_gt:
                 continue
             if inside_ignored[row] >= MATCH_IOU:
                 kind[i] = "ignored"
@@ -81,12 +87,11 @@ def classify(truth: Record, prediction: Record, min_box_px: float) -> ImageError
                 kind[i] = "duplicate"
             elif best >= LOOSE_IOU:
                 kind[i] = "loose"
-                target = int(np.argmax(iou[row]))
-                if not taken[target]:
-                    place_on[i] = int(gts[target])
+                target = int(gts[int(np.argmax(iou[row]))])
+                if taken_at.get(target, len(dets)) > rank[row]:
+                    place_on[i] = target
             else:
                 kind[i] = "background"
-        found[int(cls)], evaluated[int(cls)] = int(taken.sum()), len(gts)
     return ImageErrors(kind=kind, place_on=place_on, found=found, evaluated=evaluated)
 
 
@@ -111,7 +116,7 @@ def _fixed(prediction: Record, errors: ImageErrors, truth: Record, removed: Sequ
 
 def ap_error_breakdown(truths: Sequence[Record], predictions: Sequence[Record], class_names: Sequence[str],
                        min_box_px: float) -> dict[str, dict[str, float]]:
-    """Per class: ``ap50`` (as reported), ``max_recall``, the count of each kind of false positive
+    """Per class: ``ap50`` and ``ap`` (AP@[.5:.95]) as reported, ``max_recall``, the count of each kind of false positive
     (``n_<kind>``) and ``ap50_<fix>`` for every oracle of ``FIXES`` (percent)."""
     truths, predictions = list(truths), list(predictions)
     for truth, prediction in zip(truths, predictions, strict=True):
@@ -120,14 +125,16 @@ def ap_error_breakdown(truths: Sequence[Record], predictions: Sequence[Record], 
     errors = [classify(t, p, min_box_px) for t, p in zip(truths, predictions, strict=True)]
     out = {name: {} for name in class_names}
 
-    def record_ap(key: str, preds: list[Record]) -> None:
-        for name, ap in coco_average_precision(preds, truths, tuple(class_names), min_box_px).items():
-            out[name][key] = ap["ap50"]
+    def average_precision(preds: list[Record]) -> dict[str, dict[str, float]]:
+        return coco_average_precision(preds, truths, tuple(class_names), min_box_px)
 
-    record_ap("ap50", predictions)
+    for name, ap in average_precision(predictions).items():
+        out[name] |= {"ap50": ap["ap50"], "ap": ap["ap"]}
     for fix, _, removed, place in FIXES:
-        record_ap(f"ap50_{fix}", [_fixed(p, e, t, removed, place)
-                                  for t, p, e in zip(truths, predictions, errors, strict=True)])
+        fixed = average_precision([_fixed(p, e, t, removed, place)
+                                   for t, p, e in zip(truths, predictions, errors, strict=True)])
+        for name, ap in fixed.items():
+            out[name][f"ap50_{fix}"] = ap["ap50"]
     for c, name in enumerate(class_names):
         found = evaluated = 0
         counts = dict.fromkeys(KINDS, 0)

@@ -86,15 +86,15 @@ def detector_scores(path: Path, root: Path, gts: list[Record], min_box_px: float
     """AP per class and where AP@0.5 goes, of every detection in ``path`` against every ground-truth image
     (an image without a detection record counts as detecting nothing)."""
     from stages.detector.ap_errors import ap_error_breakdown
-    from stages.detector.metrics import coco_average_precision
     from stages.detector.model import CLASS_NAMES  # torch, imported only for --detections
 
     detections = load_predictions(path, root, {r.image: r for r in gts})
     truth = [boxes_only(r) for r in gts]
     found = [detections[r.image] if r.image in detections else dataclasses.replace(r, boxes=r.boxes[:0])
              for r in truth]
-    ap = coco_average_precision(found, truth, CLASS_NAMES, min_box_px)
-    return {"detections": str(path), "ap": ap, "breakdown": ap_error_breakdown(truth, found, CLASS_NAMES, min_box_px),
+    breakdown = ap_error_breakdown(truth, found, CLASS_NAMES, min_box_px)  # its "as is" row is the reported AP
+    ap = {name: {"ap50": row["ap50"], "ap": row["ap"]} for name, row in breakdown.items()}
+    return {"detections": str(path), "ap": ap, "breakdown": breakdown,
             "missing_images": len(set(r.image for r in gts) - set(detections))}
 
 

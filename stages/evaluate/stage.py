@@ -149,8 +149,9 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     metrics = {k.replace("eval.", "eval.shift.", 1): v for k, v in flatten(results).items()}
     detections = detections_for_ap(shift_ctx)  # every score: the detector stage's AP protocol
     if detections is not None:
-        metrics |= ap_metrics(detections, heldout.subset("test"), "shift", min_px)
-        breakdown = ap_error_breakdown(heldout.subset("test"), detections, CLASS_NAMES, min_px)
+        test = heldout.subset("test")
+        metrics |= ap_metrics(detections, test, "shift", min_px)
+        breakdown = ap_error_breakdown(test, detections, CLASS_NAMES, min_px)
         append_breakdown(out_dir / "report.md", breakdown, "held-out test split", min_px)
         metrics |= error_metrics(breakdown, "shift")
     return metrics
