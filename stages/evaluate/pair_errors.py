@@ -11,15 +11,23 @@ pair_fp:
 - a claim that is not a true pair, or repeats one, is false because its wheel box matches no ground-truth wheel
   (``false_wheel``), else because its vehicle box matches no ground-truth vehicle (``false_vehicle``), else
   because both boxes are real and the pair is wrong (``wrong_pair``).
+
+``relation_oracle`` gives the other half of the answer: the predicted boxes with the ground truth's relations, what a
+relation model that never errs would claim on them. Scored like any prediction it is the ceiling the boxes leave the
+relation model (its false claims are none, its misses are the detector's), so the distance from a method's row to it
+is what the relation model costs, and the distance from it to the ground-truth-box row what the detector costs.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from stages.metrics import _UNMATCHED as UNMATCHED  # the scores' stand-in for a box matching no ground truth
 from stages.metrics import evaluated_wheel_ids, match_boxes
 from stages.word_format import WHEEL, Record, boxes_only
+
+# The result row of ``relation_oracle`` beside the methods' rows (eval.<boxes>.relation_oracle.<subset>.<metric>)
+RELATION_ORACLE = "relation_oracle"
 
 # Causes of missed true pairs, then of false claims (``PairErrors`` fields, in report order), with their labels.
 MISSED_CAUSES = {"wheel_missed": "wheel not detected", "vehicle_missed": "vehicle not detected",
@@ -88,3 +96,12 @@ def pair_errors_records(gts: list[Record], preds: dict[str, Record], min_box_px:
     for gt in gts:
         total = total + pair_errors(gt, preds.get(gt.image) or boxes_only(gt), min_box_px, match_iou)
     return total
+
+
+def relation_oracle(gt: Record, pred: Record, match_iou: float = 0.5) -> Record:
+    """``pred``'s boxes with every relation and wheel couple of ``gt`` whose boxes were both found, matched as the
+    scores match them (``stages.metrics.match_boxes``); a box that matches nothing claims nothing."""
+    to_pred = {g: p for p, g in match_boxes(gt, pred, match_iou).items()}
+    relations = [(to_pred[v], to_pred[w], role) for v, w, role in gt.relations if v in to_pred and w in to_pred]
+    couples = [(to_pred[a], to_pred[b]) for a, b in gt.wheel_pairs if a in to_pred and b in to_pred]
+    return replace(pred, boxes=pred.boxes.copy(), relations=relations, wheel_pairs=couples)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from stages import paper
-from stages.evaluate.pair_errors import FALSE_CAUSES, MISSED_CAUSES
+from stages.evaluate.pair_errors import FALSE_CAUSES, MISSED_CAUSES, RELATION_ORACLE
 from stages.metrics import METRICS
 from stages.word_format import SUBSETS
 
@@ -11,6 +11,11 @@ from stages.word_format import SUBSETS
 PAPER_TABLE3 = {paper.TABLE3_LABELS[m]: tuple(acc[s] for s in SUBSETS) for m, acc in paper.TABLE3_ACCURACY.items()}
 PAPER_METRICS = ("wheel_acc", "image_acc")
 BOX_TITLES = {"gt": "ground-truth boxes", "detected": "detected boxes (end-to-end)"}
+ORACLE_TITLE = "detected boxes, relations from the ground truth (the ceiling)"
+ORACLE_NOTE = (f"`{RELATION_ORACLE}` is not a method: it is the ground truth's relations on the same boxes (matched "
+               "at the evaluation's IoU), what a relation model that never errs would make of them "
+               "(stages/evaluate/pair_errors.py). From a method's row up to it is what the relation model costs on "
+               "these boxes; from it up to 100, what the boxes themselves cost (missed and misplaced boxes).")
 
 
 def metric_name(boxes: str, method: str, subset: str, metric: str) -> str:
@@ -51,18 +56,26 @@ def headline_metrics(results: dict) -> dict[str, float]:
 
 
 def headline_markdown(results: dict, detector: dict | None) -> list[str]:
-    """End to end first: DeepWORD on detected boxes beside ground-truth boxes, per subset, and the detector's
-    AP and operating point (from the export bundle's ``detector`` entry) that the detected rows depend on."""
-    rows = [(b, results[b][HEADLINE_METHOD]) for b in ("detected", "gt") if HEADLINE_METHOD in results.get(b, {})]
+    """End to end first: DeepWORD on detected boxes, the ceiling those boxes leave it (``relation_oracle``) and
+    DeepWORD on ground-truth boxes, per subset, and the detector's AP and operating point (from the export
+    bundle's ``detector`` entry) that the detected rows depend on."""
+    detected, gt = results.get("detected", {}), results.get("gt", {})
+    rows = [(BOX_TITLES["detected"], detected.get(HEADLINE_METHOD)), (ORACLE_TITLE, detected.get(RELATION_ORACLE)),
+            (BOX_TITLES["gt"], gt.get(HEADLINE_METHOD))]
+    if HEADLINE_METHOD not in detected:  # the ceiling only means something beside the row it bounds
+        rows.pop(1)
+    rows = [(title, subsets) for title, subsets in rows if subsets is not None]
     if not rows:
         return []
     out = ["## End to end: DeepWORD on detected boxes beside ground-truth boxes", "",
            "| boxes | " + " | ".join(f"{m} {s}" for m in HEADLINE_METRICS for s in SUBSETS) + " |",
            "|---|" + "---:|" * (len(HEADLINE_METRICS) * len(SUBSETS))]
-    for boxes, subsets in rows:
-        out.append(f"| {BOX_TITLES.get(boxes, boxes)} | " + " | ".join(
+    for title, subsets in rows:
+        out.append(f"| {title} | " + " | ".join(
             f"{subsets[s][m]:.2f}" if s in subsets else "-" for m in HEADLINE_METRICS for s in SUBSETS) + " |")
     out.append("")
+    if any(title == ORACLE_TITLE for title, _ in rows):
+        out += [ORACLE_NOTE, ""]
     if detector:
         ap = detector.get("ap") or {}
         classes = detector.get("class_names", [])
@@ -117,6 +130,8 @@ def render_markdown(results: dict, sizes: dict[str, dict[str, int]], notes: list
     # detected boxes first: end to end is what a user with images gets
     for boxes, methods in sorted(results.items(), key=lambda item: item[0] != "detected"):
         out += [f"## {BOX_TITLES.get(boxes, boxes)}", ""]
+        if RELATION_ORACLE in methods:
+            out += [ORACLE_NOTE, ""]
         for metric in METRICS:
             out += table3(methods, metric, metric in PAPER_METRICS) + [""]
         out += errors_markdown((errors or {}).get(boxes, {}), boxes)

@@ -7,6 +7,8 @@ All its images are scored, split into easy / hard / mixed by ``word_format.diffi
 missing from the predictions counts as predicted with no relations; a prediction for an image the
 dataset does not have, or made at another resolution (its width/height differ from the ground truth's:
 its boxes would be in other pixel units), is an error. Bad input exits with code 2 and a file:line:field message.
+Beside the predictions' row, ``relation_oracle`` scores the ground truth's relations on the predicted boxes: the
+ceiling those boxes leave any relation model (``stages.evaluate.pair_errors``).
 
 ``--detections FILE`` (the ``detections.jsonl`` that ``deepword infer --detect`` writes: every detection, not
 only those at the operating point) adds the detector's COCO AP per class on the whole dataset, ground truth
@@ -22,7 +24,7 @@ import json
 import sys
 from pathlib import Path
 
-from stages.evaluate.pair_errors import pair_errors_records
+from stages.evaluate.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
 from stages.evaluate.report import render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.word_format import LABELS_FILE, DatasetError, Record, boxes_only, difficulty_subsets, read_records
@@ -71,10 +73,12 @@ def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, s
     subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed, max_easy_vehicles).items()}
     results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
     errors = {s: pair_errors_records(recs, preds, min_box_px, match_iou).as_dict() for s, recs in subsets.items()}
+    oracle = {image: relation_oracle(by_image[image], rec, match_iou) for image, rec in preds.items()}
+    ceiling = {s: score_records(recs, oracle, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
     sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
              for s, recs in subsets.items()}
     missing = len(set(by_image) - set(preds))
-    out = {"results": results, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
+    out = {"results": results, RELATION_ORACLE: ceiling, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
            "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
            "match_iou": match_iou}
     if detections_path is not None:
@@ -131,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     notes = [f"{out['missing_images']} ground-truth images had no prediction (scored as no relations)"]
-    print(render_markdown({"predictions": {args.name: out["results"]}}, out["sizes"], notes,
+    print(render_markdown({"predictions": {args.name: out["results"], RELATION_ORACLE: out[RELATION_ORACLE]}},
+                          out["sizes"], notes,
                           f"Scores of {args.pred} against {args.gt}",
                           errors={"predictions": {args.name: out["pair_errors"]}}))
     if "detector" in out:

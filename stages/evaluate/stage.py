@@ -14,7 +14,7 @@ from pathlib import Path
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext, detections_for_ap
-from stages.evaluate.pair_errors import pair_errors_records
+from stages.evaluate.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
 from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
@@ -54,7 +54,8 @@ def build_methods(ctx: EvalContext) -> dict[str, object]:
 
 def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict, dict, dict]:
     """Every method on every box source over ``ctx.dataset``'s test subsets: (results, pair errors by cause
-    ({boxes: {method: {subset: counts}}}), predictions ({boxes: {method: {image: record}}}))."""
+    ({boxes: {method: {subset: counts}}}), predictions ({boxes: {method: {image: record}}})). Detected boxes also
+    get the ``relation_oracle`` row: the ground truth's relations on them, the ceiling they leave the methods."""
     ecfg, ds = ctx.cfg, ctx.dataset
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     subsets = {s: ds.subset(s) for s in SUBSETS}
@@ -82,6 +83,13 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
             errors[boxes][name] = {s: pair_errors_records(recs, preds, min_px, iou).as_dict()
                                    for s, recs in subsets.items()}
             predictions[boxes][name] = preds
+        if boxes != "gt":  # on the ground truth's own boxes the oracle is the ground truth: 100 everywhere
+            truth = {rec.image: rec for rec in ds.subset("test")}
+            oracle = {img: relation_oracle(truth[img], rec, iou) for img, rec in inputs_by_image.items() if img in truth}
+            results[boxes][RELATION_ORACLE] = {s: score_records(recs, oracle, min_px, iou).percentages()
+                                               for s, recs in subsets.items()}
+            errors[boxes][RELATION_ORACLE] = {s: pair_errors_records(recs, oracle, min_px, iou).as_dict()
+                                              for s, recs in subsets.items()}
     return results, errors, predictions
 
 

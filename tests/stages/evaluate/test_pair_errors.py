@@ -1,7 +1,7 @@
 """Pair errors by cause (stages/evaluate/pair_errors.py) on hand-made cases, against the §7 counts."""
 
-from stages.evaluate.pair_errors import PairErrors, pair_errors, pair_errors_records
-from stages.metrics import score_image
+from stages.evaluate.pair_errors import PairErrors, pair_errors, pair_errors_records, relation_oracle
+from stages.metrics import score_image, score_records
 from tests.stages.test_metrics import GT, rec
 
 
@@ -46,3 +46,24 @@ def test_pair_errors_records_sum_images_and_count_missing_ones_as_unclaimed():
     total = pair_errors_records(gts, {"b.png": other})
     assert total == PairErrors(found=2, not_paired=2)  # a.png has no prediction: its boxes, no claims
     assert total.as_dict()["not_paired"] == 2
+
+
+def test_relation_oracle_claims_the_truth_on_found_boxes_and_nothing_else():
+    # ground truth: vehicle 0 with wheels 1, 2 (a couple); vehicle 4 with wheel 5. Detections: vehicle 0 shifted by
+    # a pixel, wheel 1, a loose box on wheel 2 (IoU < 0.5), vehicle 4 and wheel 5, a wheel box where no wheel is
+    gt = rec([[0, 0, 100, 50, 1, 0, 0], [5, 30, 25, 50, 1, 1, 1], [75, 30, 95, 50, 1, 1, 2],
+              [110, 0, 190, 50, 1, 0, 4], [160, 30, 180, 50, 1, 1, 5]],
+             relations=[(0, 1), (0, 2), (4, 5)], pairs=[(1, 2)])
+    det = rec([[1, 0, 101, 50, 0.9, 0, 10], [5, 30, 25, 50, 0.8, 1, 11], [85, 40, 99, 50, 0.7, 1, 12],
+               [110, 0, 190, 50, 0.9, 0, 13], [160, 30, 180, 50, 0.9, 1, 14], [40, 5, 50, 15, 0.6, 1, 15]])
+    oracle = relation_oracle(gt, det)
+    # every true relation whose two boxes were found, in the detections' ids; the loose wheel and the false one
+    # claim nothing, and the couple needs its loose wheel
+    assert sorted((v, w) for v, w, _ in oracle.relations) == [(10, 11), (13, 14)]
+    assert oracle.wheel_pairs == []
+    assert oracle.boxes.tolist() == det.boxes.tolist() and det.relations == []  # boxes kept, input untouched
+    c = score_image(gt, oracle)
+    assert (c.pair_tp, c.pair_fp, c.pair_fn) == (2, 0, 1)  # never a false claim; misses are the detector's
+    assert pair_errors(gt, oracle) == PairErrors(found=2, wheel_missed=1)
+    # on the ground truth's own boxes it is the ground truth: every metric 100
+    assert all(v == 100.0 for v in score_records([gt], {gt.image: relation_oracle(gt, gt)}).percentages().values())

@@ -25,6 +25,8 @@ def test_ground_truth_as_predictions_scores_100(data, tmp_path, capsys):
     assert res["missing_images"] == 0
     for subset in ("easy", "hard", "mixed"):
         assert all(v == 100.0 for v in res["results"][subset].values())
+        assert all(v == 100.0 for v in res["relation_oracle"][subset].values())  # the boxes cost nothing
+    assert "| relation_oracle |" in printed
     assert res["sizes"]["easy"]["images"] + res["sizes"]["hard"]["images"] == 20
 
 
@@ -51,6 +53,9 @@ def test_pair_errors_are_printed_and_written(data, tmp_path, capsys):
     assert errors["easy"]["not_paired"] + errors["hard"]["not_paired"] == lost
     assert all(errors[s][k] == 0 for s in errors for k in ("wheel_missed", "vehicle_missed", "false_wheel",
                                                            "false_vehicle", "wrong_pair"))
+    # all boxes there: a perfect relation model would score 100, so the whole loss is the relations'
+    ceiling = json.loads(out.read_text())["relation_oracle"]
+    assert all(ceiling[s]["pair_f1"] == 100.0 for s in ceiling)
 
 
 def test_detections_add_the_detectors_ap_and_where_it_goes(data, tmp_path, capsys):

@@ -93,6 +93,14 @@ def test_evaluate_stage_detected_boxes(chain, tmp_path):
     metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "detector": detector}, out)
     gt, det = metrics["eval.gt.logic.easy.wheel_acc"], metrics["eval.detected.logic.easy.wheel_acc"]
     assert det <= gt and det > 50  # nearly the same boxes, but the missing image's wheels are all missed
+    # the ceiling of these boxes: the truth's relations on them misses only the missing image's pairs
+    ceiling = {s: metrics[f"eval.detected.relation_oracle.{s}.pair_f1"] for s in ("easy", "hard")}
+    assert all(metrics[f"eval.detected.logic.{s}.pair_f1"] <= ceiling[s] for s in ceiling)
+    assert min(ceiling.values()) < 100  # the subset of the missing image
+    assert metrics["eval.detected.relation_oracle.hard.pair_precision"] == 100.0
+    assert "gt.relation_oracle" not in " ".join(metrics)  # on ground-truth boxes it would be the truth itself
+    report = (out / "report.md").read_text()
+    assert "| relation_oracle |" in report and "is not a method" in report
 
 
 def test_unknown_method_is_an_error(chain, tmp_path):
