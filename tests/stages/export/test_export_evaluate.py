@@ -8,8 +8,13 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     _, metrics = exported
     report = json.loads((evaluated / "report.json").read_text())
     assert set(report["results"]) == {"gt", "detected"}
-    for boxes in ("gt", "detected"):
-        assert set(report["results"][boxes]) == {"logic", "prior", "deepword", "deepword_int8"}
+    methods = {"logic", "prior", "deepword", "deepword_int8"}
+    assert set(report["results"]["gt"]) == methods
+    assert set(report["results"]["detected"]) == methods | {"relation_oracle"}  # the ceiling of the detections
+    ceiling = report["results"]["detected"]["relation_oracle"]
+    for subset in ("easy", "hard", "mixed"):
+        assert ceiling[subset]["pair_precision"] == 100.0
+        assert all(report["results"]["detected"][m][subset]["pair_f1"] <= ceiling[subset]["pair_f1"] for m in methods)
     # the export stage's own FP32/INT8 accuracies (same ONNX models, same test split) match the report
     for subset in ("easy", "hard", "mixed"):
         gt = report["results"]["gt"]
