@@ -11,6 +11,9 @@ Definitions (micro-averaged over the images of a subset):
 - evaluated wheels: ground-truth wheels whose shorter box side is >= ``min_box_px``; only they, their
   relations and their couples are scored. A prediction touching a ground-truth wheel that is *not*
   evaluated is ignored (neither right nor wrong), so every method is judged on the same objects.
+- ignore regions (``Record.ignore``: objects visible but not annotated, e.g. too hidden to label): a predicted
+  box matching no ground truth that lies mostly inside one of its class (intersection >= ``match_iou`` of the
+  box's area, COCO's crowd rule) is ignored too, and so is every relation or couple that names it.
 - wheel_acc: share of evaluated wheels whose predicted owner equals the true owner, "no owner" being a
   value. A wheel no detection matched is wrong; a wheel given two different owners is wrong.
 - pair_precision / pair_recall / pair_f1 over (vehicle, wheel) relations. Every predicted relation entry
@@ -27,16 +30,18 @@ Definitions (micro-averaged over the images of a subset):
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 
-from stages.geometry import pairwise_iou
+from stages.geometry import containment, pairwise_iou
 from stages.word_format import WHEEL, Record
 
 METRICS = ("wheel_acc", "pair_precision", "pair_recall", "pair_f1", "couple_f1", "image_acc")
 _UNMATCHED = "unmatched"  # stands for a predicted box that matched no ground truth: equal to no true id
+_IGNORED = "ignored"  # stands for an unmatched predicted box inside an ignore region: counted neither way
 
 
 @dataclass
@@ -96,7 +101,7 @@ def count_relations(evaluated: set[int], ignored: set[int], true_relations: Iter
     prediction's, one entry per claim (a repeated claim is a false positive); ``found``: the ground-truth
     wheels a predicted box stands for (None: all; a wheel not found cannot be right)."""
     true_pairs = {(v, w) for v, w in true_relations if w in evaluated}
-    claimed = [(v, w) for v, w in claimed_relations if w not in ignored]
+    claimed = [(v, w) for v, w in claimed_relations if w not in ignored and v not in ignored]
     pair_tp = len(true_pairs & set(claimed))
 
     true_c = {frozenset(c) for c in true_couples if set(c) <= evaluated}
@@ -141,18 +146,48 @@ def match_boxes(gt: Record, pred: Record, match_iou: float = 0.5) -> dict[int, i
     return out
 
 
+def in_ignore_regions(gt: Record, pred: Record, to_gt: dict[int, int], match_iou: float = 0.5) -> set[int]:
+    """Ids of the predicted boxes that matched nothing (``to_gt`` of ``match_boxes``) and lie mostly inside an
+    ignore region of their class: at least ``match_iou`` of the box's area, COCO's rule for its crowd regions."""
+    if not len(gt.ignore) or not len(pred.boxes):
+        return set()
+    inside = containment(pred.xyxy, gt.ignore[:, :4]) >= match_iou
+    same_class = pred.class_ids[:, None] == gt.ignore[None, :, 4].astype(int)
+    return {int(b) for b, hit in zip(pred.box_ids, (inside & same_class).any(axis=1), strict=True)
+            if hit and int(b) not in to_gt}
+
+
+class Matching(NamedTuple):
+    """How every score sees one image: the evaluated wheel ids; the ignored ids (the wheels too small to evaluate,
+    and ``_IGNORED``, the stand-in of a predicted box in an ignore region); ``gt_id``: predicted box id -> the
+    ground-truth id it matched, else ``_IGNORED`` or ``_UNMATCHED``; ``found``: the ground-truth ids matched."""
+    evaluated: set[int]
+    ignored: set[Hashable]
+    gt_id: Callable[[int], Hashable]
+    found: set[int]
+
+
+def match_for_scoring(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> Matching:
+    evaluated = evaluated_wheel_ids(gt, min_box_px)
+    ignored: set[Hashable] = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL} - evaluated
+    to_gt = match_boxes(gt, pred, match_iou)
+    hidden = in_ignore_regions(gt, pred, to_gt, match_iou)
+    if hidden:
+        ignored.add(_IGNORED)
+
+    def gt_id(pred_id: int) -> Hashable:
+        pred_id = int(pred_id)
+        return to_gt.get(pred_id, _IGNORED if pred_id in hidden else _UNMATCHED)
+
+    return Matching(evaluated, ignored, gt_id, set(to_gt.values()))
+
+
 def score_image(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> Counts:
     """§7 counts of one image's prediction against its ground truth."""
-    evaluated = evaluated_wheel_ids(gt, min_box_px)
-    ignored = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL} - evaluated
-    to_gt = match_boxes(gt, pred, match_iou)
-
-    def gt_id(pred_id: int) -> int | str:
-        return to_gt.get(int(pred_id), _UNMATCHED)
-
-    return count_relations(evaluated, ignored, [(v, w) for v, w, _ in gt.relations], gt.wheel_pairs,
-                           [(gt_id(v), gt_id(w)) for v, w, _ in pred.relations],
-                           [(gt_id(a), gt_id(b)) for a, b in pred.wheel_pairs], found=set(to_gt.values()))
+    m = match_for_scoring(gt, pred, min_box_px, match_iou)
+    return count_relations(m.evaluated, m.ignored, [(v, w) for v, w, _ in gt.relations], gt.wheel_pairs,
+                           [(m.gt_id(v), m.gt_id(w)) for v, w, _ in pred.relations],
+                           [(m.gt_id(a), m.gt_id(b)) for a, b in pred.wheel_pairs], found=m.found)
 
 
 def score_records(gts: list[Record], preds: dict[str, Record], min_box_px: float = 0.0,

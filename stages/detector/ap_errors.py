@@ -14,7 +14,7 @@ detection list, so each figure is exactly the AP of a detector that never made t
 Without any false positive the AP is bounded by recall alone: ``max_recall`` is the share of the evaluated
 ground truth that some detection (any kept score) matches at IoU 0.5. Detections are matched as in the AP:
 per class, greedily by score, to evaluated ground truth first; one on an ignored box (shorter side under
-``min_box_px``; an "ignore" region there) is neither kind and stays.
+``min_box_px``; an "ignore" region there) or in one of the record's ignore regions is neither kind and stays.
 """
 
 from __future__ import annotations
@@ -64,12 +64,13 @@ def classify(truth: Record, prediction: Record, min_box_px: float) -> ImageError
     for cls in np.unique(np.concatenate([truth.class_ids, prediction.class_ids])).astype(int):
         dets = np.flatnonzero(prediction.class_ids == cls)
         gts = np.flatnonzero((truth.class_ids == cls) & evaluated_gt)
-        ignored = np.flatnonzero((truth.class_ids == cls) & ~evaluated_gt)
+        ignored = truth.xyxy[(truth.class_ids == cls) & ~evaluated_gt]
+        ignored = np.concatenate([ignored, truth.ignore[truth.ignore[:, 4].astype(int) == cls, :4]])
         found[int(cls)], evaluated[int(cls)] = sum(int(g) in taken for g in gts), len(gts)
         iou = pairwise_iou(prediction.xyxy[dets], truth.xyxy[gts]) if len(gts) else np.zeros((len(dets), 0))
         # an ignore region absorbs a detection mostly inside it, as COCO's crowd regions (stages.detector.metrics)
         det_area = np.maximum(np.prod(prediction.xyxy[dets, 2:] - prediction.xyxy[dets, :2], axis=1), 1e-9)
-        inside_ignored = (pairwise_intersection(prediction.xyxy[dets], truth.xyxy[ignored]).max(axis=1) / det_area
+        inside_ignored = (pairwise_intersection(prediction.xyxy[dets], ignored).max(axis=1) / det_area
                           if len(ignored) else np.zeros(len(dets)))
         # the greedy order: a loose detection is placed on a box only if no higher-scoring detection took it
         rank = np.empty(len(dets), dtype=int)

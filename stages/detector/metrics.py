@@ -10,7 +10,8 @@ is below ``min_box_px`` can be marked "ignore" -- a detection on one is neither 
 positive, and missing one costs nothing. pycocotools' only ignore flag is ``iscrowd`` (``COCOeval._prepare``
 overwrites an ``ignore`` key with it), so those boxes are written as crowd regions: a detection matches
 one when its intersection covers at least the IoU threshold of the *detection's* area, and a crowd region
-may absorb several detections.
+may absorb several detections. A record's own ignore regions (``Record.ignore``: objects visible but not
+annotated) are crowd regions the same way.
 """
 
 from __future__ import annotations
@@ -34,6 +35,10 @@ def _coco_dicts(predictions: list[Record], ground_truth: list[Record], num_class
             w, h = float(x2 - x1), float(y2 - y1)
             annotations.append({"id": len(annotations) + 1, "image_id": img_id, "category_id": int(cls),
                                 "bbox": [float(x1), float(y1), w, h], "area": w * h, "iscrowd": int(min(w, h) < min_box_px)})
+        for x1, y1, x2, y2, cls in gt.ignore:  # visible, not annotated: ignore regions, whatever their size
+            w, h = float(x2 - x1), float(y2 - y1)
+            annotations.append({"id": len(annotations) + 1, "image_id": img_id, "category_id": int(cls),
+                                "bbox": [float(x1), float(y1), w, h], "area": w * h, "iscrowd": 1})
         for x1, y1, x2, y2, score, cls, _ in pred.boxes:
             results.append({"image_id": img_id, "category_id": int(cls), "score": float(score),
                             "bbox": [float(x1), float(y1), float(x2 - x1), float(y2 - y1)]})

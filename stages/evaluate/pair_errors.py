@@ -2,7 +2,7 @@
 detected boxes a user sees whether the detector or the relation model cost it.
 
 Counted on exactly the pairs and claims that ``stages.metrics.score_image`` counts (the same box matching, the
-same evaluated and ignored wheels), so the causes of missed pairs add up to pair_fn and those of false claims to
+same evaluated and ignored wheels, the same ignore regions), so the causes of missed pairs add up to pair_fn and those of false claims to
 pair_fp:
 
 - a true pair of an evaluated wheel that no claim names is missed because its wheel matched no predicted box
@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 from stages.metrics import _UNMATCHED as UNMATCHED  # the scores' stand-in for a box matching no ground truth
-from stages.metrics import evaluated_wheel_ids, match_boxes
-from stages.word_format import WHEEL, Record, boxes_only
+from stages.metrics import match_boxes, match_for_scoring
+from stages.word_format import Record, boxes_only
 
 # The result row of ``relation_oracle`` beside the methods' rows (eval.<boxes>.relation_oracle.<subset>.<metric>)
 RELATION_ORACLE = "relation_oracle"
@@ -58,16 +58,13 @@ class PairErrors:
 
 def pair_errors(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> PairErrors:
     """One image's pair errors by cause (see the module doc)."""
-    evaluated = evaluated_wheel_ids(gt, min_box_px)
-    ignored = {int(b) for b, c in zip(gt.box_ids, gt.class_ids, strict=True) if c == WHEEL} - evaluated
-    to_gt = match_boxes(gt, pred, match_iou)
-    found = set(to_gt.values())
+    evaluated, ignored, gt_id, found = match_for_scoring(gt, pred, min_box_px, match_iou)
     true_pairs = {(int(v), int(w)) for v, w, _ in gt.relations if w in evaluated}
     errors = PairErrors()
     credited: set[tuple] = set()
     for v, w, _ in pred.relations:
-        vehicle, wheel = to_gt.get(int(v), UNMATCHED), to_gt.get(int(w), UNMATCHED)
-        if wheel in ignored:
+        vehicle, wheel = gt_id(v), gt_id(w)
+        if wheel in ignored or vehicle in ignored:
             continue
         if (vehicle, wheel) in true_pairs and (vehicle, wheel) not in credited:
             credited.add((vehicle, wheel))

@@ -56,12 +56,14 @@ def parse_record(obj, file: str, line: int | None, root: Path | None = None, che
     pairs = _wheel_pairs(obj.get("wheel_pairs", []), cls_of, fail)
     check_optional_3d(obj, cls_of, width, height, fail)  # calibration, objects_3d: only when present
 
-    known = set(REQUIRED_KEYS) | {"scene", "wheel_pairs"}
+    ignore = _ignore_regions(obj.get("ignore", []), width, height, check_bounds, fail)
+
+    known = set(REQUIRED_KEYS) | {"scene", "wheel_pairs", "ignore"}
     extra = {k: v for k, v in obj.items() if k not in known}
     scene = obj.get("scene", "")
     return Record(image=image, frame_id=int(obj["frame_id"]), camera=obj["camera"], width=width, height=height,
                   boxes=boxes, relations=relations, wheel_pairs=pairs, scene=str(scene), extra=extra,
-                  source=(str(file), line if line is not None else 0))
+                  source=(str(file), line if line is not None else 0), ignore=ignore)
 
 
 def _image_path(image, root: Path | None, fail: Callable[[str, str], NoReturn]) -> str:
@@ -111,6 +113,28 @@ def _boxes(raw_boxes, width: int, height: int, check_bounds: bool,
         seen_ids.add(int(bid))
         boxes[i] = box
     return boxes
+
+
+def _ignore_regions(raw, width: int, height: int, check_bounds: bool,
+                    fail: Callable[[str, str], NoReturn]) -> np.ndarray:
+    """The (K, 5) ignore regions: ordered corners inside the image and a known class."""
+    if not isinstance(raw, list):
+        fail("ignore", "must be a list of [x1, y1, x2, y2, class_id]")
+    regions = np.zeros((len(raw), 5), dtype=np.float64)
+    tol = 1.0
+    for i, region in enumerate(raw):
+        fld = f"ignore[{i}]"
+        if not isinstance(region, list) or len(region) != 5 or not all(_is_number(v) for v in region):
+            fail(fld, f"must be [x1, y1, x2, y2, class_id] of finite numbers, got {region!r}")
+        x1, y1, x2, y2, cls = region
+        if not (x1 < x2 and y1 < y2):
+            fail(fld, f"x1 < x2 and y1 < y2 required, got {region[:4]}")
+        if check_bounds and (x1 < -tol or y1 < -tol or x2 > width + tol or y2 > height + tol):
+            fail(fld, f"region {region[:4]} lies outside the {width}x{height} image")
+        if not _is_int(cls) or int(cls) not in (VEHICLE, WHEEL):
+            fail(fld, f"unknown class_id {cls!r} (0 vehicle, 1 wheel)")
+        regions[i] = region
+    return regions
 
 
 def _relations(raw_rel, cls_of: dict[int, int],

@@ -24,9 +24,17 @@ class DatasetError(ValueError):
         super().__init__(f"{where}: field '{field}': {message}")
 
 
+def no_ignore_regions() -> np.ndarray:
+    return np.zeros((0, 5), dtype=np.float64)
+
+
 @dataclass
 class Record:
-    """One image's annotations. ``boxes`` is an (N, 7) float array: x1, y1, x2, y2, score, class_id, box_id."""
+    """One image's annotations. ``boxes`` is an (N, 7) float array: x1, y1, x2, y2, score, class_id, box_id.
+    ``ignore`` is a (K, 5) array x1, y1, x2, y2, class_id of *ignore regions*: where an object of that class is
+    visible but not annotated (the generator's: too hidden to label). Evaluations count a detection mostly inside
+    one, and every claim on it, neither right nor wrong, as COCO does with its crowd regions; training never reads
+    them."""
 
     image: str
     frame_id: int
@@ -39,6 +47,7 @@ class Record:
     scene: str = ""
     extra: dict = field(default_factory=dict)
     source: tuple[str, int] | None = None  # (file, line) the record was read from, for error messages
+    ignore: np.ndarray = field(default_factory=no_ignore_regions)
 
     @property
     def xyxy(self) -> np.ndarray:
@@ -78,10 +87,13 @@ class Record:
         out = {"image": self.image, "frame_id": self.frame_id, "camera": self.camera, "scene": self.scene,
                "width": self.width, "height": self.height, "boxes": boxes, "relations": relations,
                "wheel_pairs": [list(p) for p in self.wheel_pairs]}
+        if len(self.ignore):
+            out["ignore"] = [[round(float(x1), 2), round(float(y1), 2), round(float(x2), 2), round(float(y2), 2), int(c)]
+                             for x1, y1, x2, y2, c in self.ignore]
         out.update(self.extra)
         return out
 
 
 def boxes_only(rec: Record) -> Record:
-    """The record's boxes without its relations or couples: what a relation method gets to see."""
-    return replace(rec, boxes=rec.boxes.copy(), relations=[], wheel_pairs=[])
+    """The record's boxes without its relations, couples or ignore regions: what a relation method gets to see."""
+    return replace(rec, boxes=rec.boxes.copy(), relations=[], wheel_pairs=[], ignore=no_ignore_regions())

@@ -174,3 +174,25 @@ def test_no_couples_anywhere_is_a_perfect_couple_f1_for_every_user():
     gt = rec(GT.boxes.tolist(), [(0, 1), (0, 2)])
     assert score_image(gt, with_relations([(0, 1), (0, 2)])).percentages()["couple_f1"] == 100.0
     assert couple_f1(prepare_train([gt], 0.0, 1, 0), [[]]) == 100.0
+
+
+def test_a_prediction_in_an_ignore_region_counts_neither_way():
+    # ground truth: vehicle 0 with wheels 1, 2; a second vehicle too hidden to label, with a visible wheel: ignore
+    # regions (vehicle 120-180, wheel 150-160)
+    gt = rec(GT.boxes[:3].tolist(), relations=[(0, 1), (0, 2)], pairs=[(1, 2)])
+    gt.ignore = np.array([[120, 10, 180, 50, 0], [150, 40, 160, 50, 1]], dtype=np.float64)
+    found = [[0, 0, 100, 50, 0.9, 0, 10], [5, 30, 25, 50, 0.9, 1, 11], [75, 30, 95, 50, 0.9, 1, 12]]
+    hidden = [[121, 10, 180, 50, 0.6, 0, 13], [150, 41, 160, 50, 0.5, 1, 14]]
+    claims = [(10, 11), (10, 12), (13, 14)]
+    c = score_image(gt, rec(found + hidden, claims, [(11, 12), (14, 11)]))
+    assert (c.pair_tp, c.pair_fp, c.pair_fn) == (2, 0, 0) and (c.couple_tp, c.couple_fp) == (1, 0)
+    assert c.images_correct == 1
+    # a real wheel claimed by the hidden vehicle's box: neither right nor wrong either
+    assert score_image(gt, rec(found + hidden, claims + [(13, 12)])).pair_fp == 0
+    # without the regions both are false; a box of the other class, or mostly outside, is not absorbed
+    bare = rec(GT.boxes[:3].tolist(), relations=[(0, 1), (0, 2)], pairs=[(1, 2)])
+    assert score_image(bare, rec(found + hidden, claims)).pair_fp == 1
+    in_a_vehicle_region = [[125, 15, 135, 25, 0.5, 1, 15]]  # a wheel box inside the hidden vehicle's region only
+    assert score_image(gt, rec(found + hidden + in_a_vehicle_region, claims + [(10, 15)])).pair_fp == 1
+    half_out = [[155, 41, 175, 50, 0.5, 1, 14]]  # a quarter of it inside the hidden wheel's region
+    assert score_image(gt, rec(found + half_out, [(10, 11), (10, 12), (10, 14)])).pair_fp == 1

@@ -40,6 +40,17 @@ def test_a_record_parses_writes_and_reads_back_unchanged(tmp_path):
     bare = boxes_only(back)
     assert bare.relations == [] and bare.wheel_pairs == [] and np.array_equal(bare.boxes, back.boxes)
     assert bare.boxes is not back.boxes
+    assert "ignore" not in rec.to_json() and rec.ignore.shape == (0, 5)  # optional, and not written when empty
+
+
+def test_ignore_regions_parse_write_back_and_stay_out_of_what_methods_see(tmp_path):
+    rec = parse_record({**GOOD, "ignore": [[40, 5, 60, 20, 0], [50, 30, 53, 36, 1]]}, "labels.jsonl", 1)
+    assert rec.ignore.tolist() == [[40, 5, 60, 20, 0], [50, 30, 53, 36, 1]]
+    assert "ignore" not in rec.extra
+    write_records(tmp_path / "labels.jsonl", [rec])
+    (back,) = read_records(tmp_path / "labels.jsonl")
+    assert back.to_json()["ignore"] == [[40.0, 5.0, 60.0, 20.0, 0], [50.0, 30.0, 53.0, 36.0, 1]]
+    assert boxes_only(back).ignore.shape == (0, 5)
 
 
 @pytest.mark.parametrize(("change", "field", "message"), [
@@ -51,6 +62,11 @@ def test_a_record_parses_writes_and_reads_back_unchanged(tmp_path):
     ({"relations": [[1, 0]]}, "relations[0]", "is not a vehicle"),
     ({"relations": [[0, 1], [0, 1]]}, "relations[1]", "already has owner 0"),
     ({"wheel_pairs": [[1, 1]]}, "wheel_pairs[0]", "cannot pair with itself"),
+    ({"ignore": {"x": 1}}, "ignore", "must be a list"),
+    ({"ignore": [[1, 2, 3, 4]]}, "ignore[0]", r"must be \[x1, y1, x2, y2, class_id\]"),
+    ({"ignore": [[10, 2, 3, 4, 0]]}, "ignore[0]", "x1 < x2 and y1 < y2 required"),
+    ({"ignore": [[1, 2, 3, 4, 0], [1, 2, 90, 4, 1]]}, "ignore[1]", "outside the 64x48 image"),
+    ({"ignore": [[1, 2, 3, 4, 7]]}, "ignore[0]", "unknown class_id 7"),
 ])
 def test_each_field_is_checked_and_named_with_file_and_line(change, field, message):
     with pytest.raises(DatasetError, match=message) as err:

@@ -73,6 +73,18 @@ def test_occluded_and_tiny_objects_are_not_annotated():
     assert rec.n_vehicles == 1 and rec.n_wheels == 1
     v, w, role = rec.relations[0]
     assert role == "rear"
+    # what is visible but not annotated becomes an ignore region of its visible box; nothing invisible does
+    assert rec.ignore.tolist() == [[0, 0, 30, 30, VEHICLE]] * (nv - 1) + [[40, 30, 43, 40, WHEEL]]
+    again = Record(**{**rec.__dict__, "ignore": rec.ignore[:0]})
+    assert again.to_json() | {"ignore": rec.to_json()["ignore"]} == rec.to_json()  # the labels are the same
+
+
+def test_ignore_regions_are_the_unannotated_visible_objects(synword_sample):
+    _, records = synword_sample
+    assert sum(len(r.ignore) for r in records) > 0  # occlusion and distance hide something in every sample
+    for rec in records:
+        for x1, y1, x2, y2, cls in rec.ignore:
+            assert cls in (VEHICLE, WHEEL) and 0 <= x1 < x2 <= rec.width and 0 <= y1 < y2 <= rec.height
 
 
 def test_split_by_frame_and_difficulty_subsets(synword_sample):

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -32,6 +33,11 @@ def test_each_detection_gets_its_kind():
     assert errors.kind == ["tp", "duplicate", "loose", "background", "tp", "ignored"]
     assert errors.place_on[2] == 1 and (np.delete(errors.place_on, 2) == -1).all()
     assert errors.found == {0: 1, 1: 1} and errors.evaluated == {0: 2, 1: 1}
+
+
+def test_a_detection_in_an_ignore_region_is_no_error():
+    truth = dataclasses.replace(TRUTH, ignore=np.array([[0, 78, 10, 100, 0]], dtype=np.float64))  # a hidden vehicle
+    assert classify(truth, DETECTIONS, min_box_px=8).kind[3] == "ignored"
 
 
 def test_oracles_are_the_ap_of_a_detector_without_those_errors():

@@ -52,6 +52,15 @@ def test_boxes_below_min_box_px_are_ignored_not_missed_nor_false_positives():
     assert coco_average_precision(fp, gt, min_box_px=8)["wheel"]["ap50"] == pytest.approx(50.0, abs=1.0)
 
 
+def test_a_detection_in_an_ignore_region_is_neither_true_nor_false():
+    gt = [rec("a", [[0, 0, 20, 20, 1, 1, 0]])]
+    gt[0].ignore = np.array([[50, 50, 60, 58, 1]], dtype=np.float64)  # a wheel too hidden to label
+    pred = [rec("a", [[50, 50, 60, 59, 0.9, 1, 0], [0, 0, 20, 20, 0.8, 1, 1]])]
+    assert coco_average_precision(pred, gt)["wheel"]["ap50"] == pytest.approx(100.0)
+    bare = [dataclasses.replace(gt[0], ignore=np.zeros((0, 5)))]
+    assert coco_average_precision(pred, bare)["wheel"]["ap50"] == pytest.approx(50.0, abs=1.0)
+
+
 def test_stage_reports_every_box_ap_beside_the_protocol_ap():
     from stages.detector.stage import ap_metrics
 

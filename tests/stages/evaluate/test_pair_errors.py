@@ -1,5 +1,7 @@
 """Pair errors by cause (stages/evaluate/pair_errors.py) on hand-made cases, against the §7 counts."""
 
+import numpy as np
+
 from stages.evaluate.pair_errors import PairErrors, pair_errors, pair_errors_records, relation_oracle
 from stages.metrics import score_image, score_records
 from tests.stages.test_metrics import GT, rec
@@ -67,3 +69,13 @@ def test_relation_oracle_claims_the_truth_on_found_boxes_and_nothing_else():
     assert pair_errors(gt, oracle) == PairErrors(found=2, wheel_missed=1)
     # on the ground truth's own boxes it is the ground truth: every metric 100
     assert all(v == 100.0 for v in score_records([gt], {gt.image: relation_oracle(gt, gt)}).percentages().values())
+
+
+def test_claims_in_ignore_regions_are_no_error():
+    gt = rec(GT.boxes[:3].tolist(), relations=[(0, 1), (0, 2)])
+    gt.ignore = np.array([[150, 40, 160, 50, 1]], dtype=np.float64)  # a wheel too hidden to label
+    pred = rec(GT.boxes[:3].tolist() + [[150, 41, 160, 50, 0.5, 1, 9], [40, 5, 50, 15, 0.5, 1, 8]],
+               [(0, 1), (0, 2), (0, 9), (0, 8)])
+    e = pair_errors(gt, pred)
+    assert e == PairErrors(found=2, false_wheel=1)  # the box on the roof is still false, the hidden wheel is not
+    assert e.false_wheel == score_image(gt, pred).pair_fp
