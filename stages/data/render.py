@@ -135,9 +135,10 @@ def vehicle_boxes(v: Vehicle):
 
 
 def render_vehicle(tables: CameraTables, v: Vehicle, vid: int, wheel_ids, tbuf, ids, rgb, sun, sun_strength,
-                   own_counts, crops=None) -> np.ndarray | None:
+                   own_counts, crops=None, own_boxes=None) -> np.ndarray | None:
     """Ray-cast one vehicle; returns its unoccluded mask over its crop (or None out of view), and fills
-    own_counts[k] with each wheel's unoccluded pixel count."""
+    own_counts[k] with each wheel's unoccluded pixel count and, when given, own_boxes[k] with its unoccluded
+    bbox (None where it covers nothing)."""
     cam = tables.cam
     R = v.rotation
     if crops is None:
@@ -176,6 +177,8 @@ def render_vehicle(tables: CameraTables, v: Vehicle, vid: int, wheel_ids, tbuf, 
         hit = zwrite(crop, t, tbuf, ids, rgb, wid, partial(_shade_wheel_hits, v=v, dl=dl, o=o, t=t, on_cap=on_cap,
                                                            light=light))
         own_counts[k] = int(hit.sum()) if wheel_ids is not None else 0
+        if own_boxes is not None:
+            own_boxes[k] = mask_bbox(hit, crop[0], crop[1])
         or_into(own, hit, crop, vc)
     return own
 
@@ -223,11 +226,12 @@ def _shade_prop(colour, kind, p, view, axis, sign, light: Light):
 
 @dataclass
 class ObjectStats:
-    """Per rendered object: unoccluded pixels (in image and FOV), visible pixels, visible bbox."""
+    """Per rendered object: unoccluded pixels (in image and FOV), visible pixels, visible bbox, unoccluded bbox."""
 
     own_px: int
     visible_px: int
     bbox: tuple[int, int, int, int] | None  # x1, y1, x2, y2 (x2, y2 exclusive)
+    own_bbox: tuple[int, int, int, int] | None = None  # where the object would be seen unoccluded
 
 
 def render_background(tables: CameraTables, tex: np.ndarray, look: Look, clouds: np.ndarray) -> np.ndarray:
@@ -257,6 +261,7 @@ def render_camera(tables: CameraTables, scene: Scene, tex: np.ndarray, look: Loo
     ids = tables.base_ids.copy()
     nv = len(scene.vehicles)
     own_masks, wheel_own = [], np.zeros((nv, 4), np.int64)
+    wheel_own_boxes = [[None] * 4 for _ in range(nv)]
     all_boxes = [vehicle_boxes(v) for v in scene.vehicles]
     per_vehicle = [len(b[0]) for b in all_boxes]
     crops = []
@@ -267,7 +272,7 @@ def render_camera(tables: CameraTables, scene: Scene, tex: np.ndarray, look: Loo
     for i, v in enumerate(scene.vehicles):
         wheel_ids = [nv + 4 * i + k for k in range(4)]
         own_masks.append(render_vehicle(tables, v, i, wheel_ids, tbuf, ids, rgb, look.sun, look.sun_strength,
-                                        wheel_own[i], crops=crops[i]))
+                                        wheel_own[i], crops=crops[i], own_boxes=wheel_own_boxes[i]))
     render_props(tables, scene.props, tbuf, ids, rgb, look.sun, look.sun_strength)
     vehicles, wheels = [], []
     for i in range(nv):
@@ -280,8 +285,9 @@ def render_camera(tables: CameraTables, scene: Scene, tex: np.ndarray, look: Loo
         idc = ids[y0:y1, x0:x1]
         wid0 = nv + 4 * i
         vis = (idc == i) | ((idc >= wid0) & (idc < wid0 + 4))
-        vehicles.append(ObjectStats(int(own.sum()), int(vis.sum()), mask_bbox(vis, x0, y0)))
+        vehicles.append(ObjectStats(int(own.sum()), int(vis.sum()), mask_bbox(vis, x0, y0), mask_bbox(own, x0, y0)))
         for k in range(4):
             wv = idc == wid0 + k
-            wheels.append(ObjectStats(int(wheel_own[i, k]), int(wv.sum()), mask_bbox(wv, x0, y0)))
+            wheels.append(ObjectStats(int(wheel_own[i, k]), int(wv.sum()), mask_bbox(wv, x0, y0),
+                                      wheel_own_boxes[i][k]))
     return rgb, ids, vehicles, wheels

@@ -3,7 +3,7 @@
 Labels come from the render: a box is the bbox of the object's visible pixels in the id buffer (a
 vehicle's includes its visible wheels), an object is annotated only if at least ``min_visible_fraction``
 of the pixels it would cover unoccluded are visible and its shorter side is at least ``min_box_px``; every
-other object with a visible pixel becomes an ignore region (``Record.ignore``) of its visible bbox;
+other object with a visible pixel becomes an ignore region (``Record.ignore``): the bbox it would cover unoccluded;
 relations, roles and couples come from the 3D truth. Frames are independent (per-frame seed from the
 config seed and the frame index), so generation parallelises across processes and stays deterministic.
 """
@@ -106,11 +106,13 @@ class FrameGenerator:
                 if a in box_id and b in box_id:
                     pairs.append((box_id[a], box_id[b]))
         arr = np.array(sorted(boxes, key=lambda r: r[6]), dtype=np.float64).reshape(-1, 7)
-        # what is visible but too hidden (or too small) to label: ignore regions, so that a detector that finds it
-        # and a relation model that claims it are not counted wrong (drawn after the ids: the labels stay as they were)
-        hidden = [(cls, st) for cls, stats in ((VEHICLE, vstats), (WHEEL, wstats))
+        # what is visible but too hidden (or too small) to label: ignore regions where it would be seen unoccluded
+        # (a detector boxes a half-hidden wheel whole), so that a detector that finds it and a relation model that
+        # claims it are not counted wrong. Drawn after the ids: the labels stay as they were.
+        hidden = [(cls, st.bbox if st.own_bbox is None else st.own_bbox)
+                  for cls, stats in ((VEHICLE, vstats), (WHEEL, wstats))
                   for k, st in enumerate(stats) if (cls, k) not in box_id and st.bbox is not None and st.visible_px]
-        ignore = np.array([[*map(float, st.bbox), cls] for cls, st in hidden], dtype=np.float64).reshape(-1, 5)
+        ignore = np.array([[*map(float, box), cls] for cls, box in hidden], dtype=np.float64).reshape(-1, 5)
         extra = {"layout": scene.layout, "calibration": cam.shifted(self.rear_axle).calibration(),
                  "objects_3d": self.objects_3d(scene, box_id)}
         return Record(image=image_path(cam.name, frame_id), frame_id=int(frame_id), camera=cam.name,

@@ -65,7 +65,7 @@ def test_occluded_and_tiny_objects_are_not_annotated():
     from stages.data.render import ObjectStats
 
     nv = len(scene.vehicles)
-    vstats = [ObjectStats(100, 100, (10, 10, 60, 40))] + [ObjectStats(100, 10, (0, 0, 30, 30))] * (nv - 1)
+    vstats = [ObjectStats(100, 100, (10, 10, 60, 40))] + [ObjectStats(100, 10, (0, 0, 30, 30), (0, 0, 50, 35))] * (nv - 1)
     wstats = [ObjectStats(50, 50, (20, 30, 30, 40)), ObjectStats(50, 50, (40, 30, 43, 40))]
     wstats += [ObjectStats(0, 0, None)] * (4 * nv - 2)
     rec = gen.labels(3, gen.tables(3)[0].cam, scene, vstats, wstats, rng)
@@ -73,8 +73,9 @@ def test_occluded_and_tiny_objects_are_not_annotated():
     assert rec.n_vehicles == 1 and rec.n_wheels == 1
     v, w, role = rec.relations[0]
     assert role == "rear"
-    # what is visible but not annotated becomes an ignore region of its visible box; nothing invisible does
-    assert rec.ignore.tolist() == [[0, 0, 30, 30, VEHICLE]] * (nv - 1) + [[40, 30, 43, 40, WHEEL]]
+    # what is visible but not annotated becomes an ignore region where it would be seen unoccluded (its visible
+    # box where that is not known); nothing invisible does
+    assert rec.ignore.tolist() == [[0, 0, 50, 35, VEHICLE]] * (nv - 1) + [[40, 30, 43, 40, WHEEL]]
     again = Record(**{**rec.__dict__, "ignore": rec.ignore[:0]})
     assert again.to_json() | {"ignore": rec.to_json()["ignore"]} == rec.to_json()  # the labels are the same
 
@@ -85,6 +86,28 @@ def test_ignore_regions_are_the_unannotated_visible_objects(synword_sample):
     for rec in records:
         for x1, y1, x2, y2, cls in rec.ignore:
             assert cls in (VEHICLE, WHEEL) and 0 <= x1 < x2 <= rec.width and 0 <= y1 < y2 <= rec.height
+
+
+def test_an_objects_unoccluded_box_holds_its_visible_box():
+    cfg = synword_cfg(frames=1)
+    gen = FrameGenerator(cfg, seed=3)
+    rng = gen.frame_rng(0)
+    scene = gen.sampler.sample(rng)
+    from stages.data.backdrop import draw_look, ground_texture
+    from stages.data.render import render_camera
+
+    look = draw_look(rng, gen.domain.draw(rng, "skies"), gen.domain.draw(rng, "grounds"), gen.domain.sun_elevation_deg)
+    tex = ground_texture(gen.grounds, look, scene)
+    seen = 0
+    for tables in gen.tables(0):
+        _, _, vstats, wstats = render_camera(tables, scene, tex, look, gen.clouds)
+        for st in vstats + wstats:
+            if st.bbox is None:
+                continue
+            seen += 1
+            (a, b, c, d), (e, f, g, h) = st.bbox, st.own_bbox
+            assert e <= a and f <= b and g >= c and h >= d and st.visible_px <= st.own_px
+    assert seen
 
 
 def test_split_by_frame_and_difficulty_subsets(synword_sample):
