@@ -112,7 +112,8 @@ def count_relations(evaluated: set[int], ignored: set[int], true_relations: Iter
     true_owner = {w: v for v, w in true_relations}
     pred_owners: dict[Hashable, set[Hashable]] = {}
     for v, w in claimed_relations:
-        pred_owners.setdefault(w, set()).add(v)
+        if v not in ignored:  # a claim by a box in an ignore region counts neither way
+            pred_owners.setdefault(w, set()).add(v)
     correct = 0
     for w in evaluated:
         if found is not None and w not in found:

@@ -2,8 +2,8 @@
 detected boxes a user sees whether the detector or the relation model cost it.
 
 Counted on exactly the pairs and claims that ``stages.metrics.score_image`` counts (the same box matching, the
-same evaluated and ignored wheels, the same ignore regions), so the causes of missed pairs add up to pair_fn and those of false claims to
-pair_fp:
+same evaluated and ignored wheels, the same ignore regions), so the causes of missed pairs add up to pair_fn and
+those of false claims to pair_fp:
 
 - a true pair of an evaluated wheel that no claim names is missed because its wheel matched no predicted box
   (``wheel_missed``), else because its vehicle did not (``vehicle_missed``), else because the two matched boxes
@@ -15,7 +15,7 @@ pair_fp:
 ``relation_oracle`` gives the other half of the answer: the predicted boxes with the ground truth's relations, what a
 relation model that never errs would claim on them. Scored like any prediction it is the ceiling the boxes leave the
 relation model (its false claims are none, its misses are the detector's), so the distance from a method's row to it
-is what the relation model costs, and the distance from it to the ground-truth-box row what the detector costs.
+is what the relation model costs on those boxes, and the distance from it to 100 what the boxes cost.
 """
 
 from __future__ import annotations

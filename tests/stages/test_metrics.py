@@ -187,8 +187,10 @@ def test_a_prediction_in_an_ignore_region_counts_neither_way():
     c = score_image(gt, rec(found + hidden, claims, [(11, 12), (14, 11)]))
     assert (c.pair_tp, c.pair_fp, c.pair_fn) == (2, 0, 0) and (c.couple_tp, c.couple_fp) == (1, 0)
     assert c.images_correct == 1
-    # a real wheel claimed by the hidden vehicle's box: neither right nor wrong either
-    assert score_image(gt, rec(found + hidden, claims + [(13, 12)])).pair_fp == 0
+    # a real wheel claimed by the hidden vehicle's box as well: neither right nor wrong either, the wheel keeps its
+    # one owner
+    both = score_image(gt, rec(found + hidden, claims + [(13, 12)]))
+    assert both.pair_fp == 0 and both.wheels_correct == 2
     # without the regions both are false; a box of the other class, or mostly outside, is not absorbed
     bare = rec(GT.boxes[:3].tolist(), relations=[(0, 1), (0, 2)], pairs=[(1, 2)])
     assert score_image(bare, rec(found + hidden, claims)).pair_fp == 1
