@@ -85,6 +85,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
     from stages.lightning_logs import lightning_progress, route_lightning_logs
+    from stages.loader_workers import loader_workers
     from stages.precision import BF16, resolve_precision
     from stages.replicas import check_replicas_agree
 
@@ -105,13 +106,14 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"],
                              channels_last)
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
+    workers = loader_workers(det["num_workers"], trainer_cfg.get("accelerator", "auto"))
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],
-                              det["augment"], det["batch_size"], det["num_workers"], det["min_overlap"],
-                              mcfg["regression"])
+                              det["augment"], det["batch_size"], workers, det["min_overlap"], mcfg["regression"])
     checkpoint, latest = best_and_latest(out_dir / "checkpoints", "val/ap50", "max")
     loggers = _loggers(out_dir)
     for logger in loggers:  # the precision this machine trained in, beside the configured "auto"
-        logger.log_hyperparams({"detector.precision": precision, "detector.channels_last": channels_last})
+        logger.log_hyperparams({"detector.precision": precision, "detector.channels_last": channels_last,
+                                "detector.loader_workers": workers})
     trainer = L.Trainer(
         max_epochs=det["epochs"], limit_train_batches=det["limit_train_batches"],
         limit_val_batches=det["limit_val_batches"], check_val_every_n_epoch=det["val_every_n_epochs"],
@@ -126,6 +128,10 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     last = out_dir / "checkpoints" / "last.ckpt"
     trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None, weights_only=True)
     train_seconds = time.perf_counter() - started
+    if not last.is_file():
+        # The latest-epoch callback saves after validation; fewer epochs than detector.val_every_n_epochs
+        # validate never, and the trained weights would be lost.
+        trainer.save_checkpoint(last)
     check_replicas_agree(module, "detector")
     if not trainer.is_global_zero:  # another rank of a DDP launch: rank 0 saves, predicts and reports
         return {}

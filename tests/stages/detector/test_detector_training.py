@@ -137,3 +137,21 @@ def test_the_detector_seed_is_the_training_draw(toy_dataset, tmp_path, monkeypat
     default, same, other = weights(None), weights(3), weights(4)
     assert all(torch.equal(default[k], same[k]) for k in default)
     assert not all(torch.equal(default[k], other[k]) for k in default)
+
+
+def test_fewer_epochs_than_the_validation_interval_still_ship_the_trained_weights(toy_dataset, tmp_path):
+    """No epoch validates, so no best checkpoint: the stage saves the latest one itself and ships it."""
+    from stages.detector.stage import run
+
+    cfg = OmegaConf.create({"detector": detector_cfg(epochs=1, val_every_n_epochs=2, augment={"crop": [64, 64]}),
+                            "seed": 3, "trainer": OmegaConf.load(CONF / "trainer" / "cpu.yaml")})
+    cfg.trainer.threads, cfg.trainer.precision = 1, "32-true"
+    out = tmp_path / "detector"
+    out.mkdir()
+    metrics = run(cfg, {"data": toy_dataset}, out)
+
+    assert metrics["detector.epochs"] == 1.0
+    assert (out / "checkpoints" / "last.ckpt").is_file() and not (out / "checkpoints" / "best.ckpt").exists()
+    shipped = torch.load(out / "model.pt", weights_only=True)
+    last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=True)["state_dict"]
+    assert all(torch.equal(shipped[k.removeprefix("net.")], v) for k, v in last.items() if k.startswith("net."))
