@@ -47,7 +47,18 @@ def test_training_without_a_terminal_prints_one_line_per_epoch():
     lines = log.getvalue().splitlines()
     assert [line.split(":")[0] for line in lines] == ["tiny epoch 1/3", "tiny epoch 2/3", "tiny epoch 3/3"]
     assert "train/loss=" in lines[0] and "\r" not in log.getvalue()
+    assert lines[0].endswith(" left)") and lines[1].endswith(" left)")  # the time left, while epochs remain
+    assert lines[2].endswith(" s)") and "left" not in lines[2]
     assert lightning_progress("tiny", FakeTerminal()) == []  # a terminal keeps Lightning's own bar
     import pickle
 
     pickle.loads(pickle.dumps(lightning_progress("tiny")))  # DDP spawn pickles the Trainer's callbacks
+
+
+def test_time_left_reads_at_the_precision_an_estimate_deserves():
+    from stages.lightning_logs import format_duration
+
+    assert format_duration(42.4) == "42 s"
+    assert format_duration(89) == "89 s"
+    assert format_duration(7 * 60 + 10) == "7 min"
+    assert format_duration(65 * 60 + 20) == "1 h 05 min"
