@@ -13,7 +13,10 @@ trained in bf16 is never mistaken for an fp32 one.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 AUTO = "auto"
 BF16 = "bf16-mixed"
@@ -59,4 +62,11 @@ def resolve_precision(requested: str, accelerator: str) -> str:
     accelerator = str(accelerator)
     if accelerator in ("gpu", "cuda") or (accelerator == AUTO and torch.cuda.is_available()):
         return BF16 if gpu_has_bf16() else FP32
-    return BF16 if cpu_has_native_bf16() else FP32
+    if cpu_has_native_bf16():
+        return BF16
+    # The profiles' epoch budgets were measured with bf16: say so before a stage trains several times longer.
+    log.warning("trainer.precision=auto: this CPU has no native bf16 (%s), so training runs in fp32, whose "
+                "steps are 2-5x slower than the profiles' epoch budgets assume (a quick-profile detector epoch took "
+                "65-75 s on such a 2-core host against 13-15 s); the epoch lines give the time left, and a lower "
+                "detector.epochs shortens the run", " / ".join(BF16_CPU_FLAGS))
+    return FP32

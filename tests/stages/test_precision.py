@@ -45,3 +45,16 @@ def test_cpu_flags_reads_the_flags_line(tmp_path):
     info.write_text("processor\t: 0\nflags\t\t: fpu avx512f avx512_bf16\n\nprocessor\t: 1\nflags\t\t: fpu\n")
     assert precision.cpu_flags(info) == {"fpu", "avx512f", "avx512_bf16"}
     assert precision.cpu_flags(tmp_path / "missing") == set()
+
+
+def test_the_fp32_fallback_says_training_will_take_longer(cpu, caplog):
+    cpu({"avx2", "avx512f"})
+    with caplog.at_level("WARNING", logger="stages.precision"):
+        assert resolve_precision("auto", "cpu") == FP32
+    assert "no native bf16" in caplog.text and "detector.epochs" in caplog.text
+    caplog.clear()
+    cpu({"avx512_bf16"})
+    with caplog.at_level("WARNING", logger="stages.precision"):
+        assert resolve_precision("auto", "cpu") == BF16
+        assert resolve_precision("32-true", "cpu") == FP32  # asked for: nothing to say
+    assert caplog.text == ""
