@@ -64,9 +64,21 @@ def resolve_precision(requested: str, accelerator: str) -> str:
         return BF16 if gpu_has_bf16() else FP32
     if cpu_has_native_bf16():
         return BF16
-    # The profiles' epoch budgets were measured with bf16: say so before a stage trains several times longer.
+    warn_fp32_fallback()
+    return FP32
+
+
+_warned = False
+
+
+def warn_fp32_fallback() -> None:
+    """Once a process (the relation stage resolves the precision for each ensemble member): the profiles' epoch
+    budgets were measured with bf16, so say so before a stage trains several times longer."""
+    global _warned
+    if _warned:
+        return
+    _warned = True
     log.warning("trainer.precision=auto: this CPU has no native bf16 (%s), so training runs in fp32, whose "
                 "steps are 2-5x slower than the profiles' epoch budgets assume (a quick-profile detector epoch took "
                 "65-75 s on such a 2-core host against 13-15 s); the epoch lines give the time left, and a lower "
                 "detector.epochs shortens the run", " / ".join(BF16_CPU_FLAGS))
-    return FP32
