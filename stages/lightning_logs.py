@@ -72,7 +72,7 @@ class EpochLines(ProgressBar):
         done = trainer.current_epoch + 1
         timing = f"{now - self._started:.0f} s"
         to_go = (trainer.max_epochs or 0) - done
-        if to_go > 0 and trainer.max_epochs > 0:
+        if to_go > 0:
             per_epoch = (now - self._fit_started) / (done - self._first_epoch)
             timing += f", ~{format_duration(per_epoch * to_go)} left"
         print(f"{self.name} epoch {done}/{trainer.max_epochs}: {metrics} ({timing})",

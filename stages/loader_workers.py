@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 
+from stages.precision import trains_on_gpu
+
 # Accelerated training measured the same with 10 and 14 workers (docs/detector.md, "On a GPU"): more only
 # costs memory, as each worker keeps its own cache of decoded images.
 MAX_ACCELERATOR_WORKERS = 10
@@ -28,11 +30,7 @@ def loader_workers(requested: int | None, accelerator: str, cores: int | None = 
         if int(requested) < 0:
             raise ValueError(f"num_workers must be >= 0 or null (auto), got {requested}")
         return int(requested)
-    import torch
-
-    accelerator = str(accelerator)
-    on_accelerator = accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())
-    if not on_accelerator:
+    if not trains_on_gpu(accelerator):
         return 0
     cores = usable_cores() if cores is None else cores
     return max(0, min(MAX_ACCELERATOR_WORKERS, cores - 2))

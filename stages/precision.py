@@ -51,16 +51,21 @@ def gpu_has_bf16() -> bool:
     return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
 
 
+def trains_on_gpu(accelerator: str) -> bool:
+    """Whether Lightning's ``accelerator`` setting puts training on a GPU on this machine."""
+    import torch
+
+    accelerator = str(accelerator)
+    return accelerator in ("gpu", "cuda") or (accelerator == AUTO and torch.cuda.is_available())
+
+
 def resolve_precision(requested: str, accelerator: str) -> str:
     """Lightning's ``precision`` for a training run: ``requested`` unless it is ``auto``, which becomes
     ``bf16-mixed`` on hardware with native bf16 (see the module doc) and ``32-true`` elsewhere."""
-    import torch
-
     requested = str(requested)
     if requested != AUTO:
         return requested
-    accelerator = str(accelerator)
-    if accelerator in ("gpu", "cuda") or (accelerator == AUTO and torch.cuda.is_available()):
+    if trains_on_gpu(accelerator):
         return BF16 if gpu_has_bf16() else FP32
     if cpu_has_native_bf16():
         return BF16

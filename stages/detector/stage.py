@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -40,7 +39,9 @@ def _loggers(out_dir: Path) -> list:
 
 def _threads(trainer_cfg: dict) -> int:
     """Intra-op threads: the trainer config's ``threads`` if set, else every core this process may use."""
-    return int(trainer_cfg.get("threads") or len(os.sched_getaffinity(0)))
+    from stages.loader_workers import usable_cores
+
+    return int(trainer_cfg.get("threads") or usable_cores())
 
 
 def _load_best_weights(net, checkpoint_path: str) -> None:
