@@ -115,3 +115,31 @@ def test_subset_relation_runs_each_distinct_subset_once():
 def test_empty_grid_is_an_error():
     with pytest.raises(ValueError, match="grid is empty"):
         search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, [])
+
+
+def test_the_search_predicts_and_scores_each_distinct_subset_once_and_agrees_with_scoring_afresh(monkeypatch):
+    import stages.export.operating_point as op
+
+    scored, batches, real_score = [], [], op.score_image
+
+    def counting_score(gt, pred, *args):
+        scored.append((pred.image, tuple(pred.box_ids.tolist())))
+        return real_score(gt, pred, *args)
+
+    def predict(records):
+        batches.append([(r.image, tuple(r.box_ids.tolist())) for r in records])
+        return tightest_vehicle(records)
+
+    monkeypatch.setattr(op, "score_image", counting_score)
+    rear = "images/rear/000001.png"
+    truths = [TRUTH, replace(TRUTH, image=rear)]
+    detections = [DETECTIONS, replace(SMALL_FALSE, image=rear)]
+    grid, sides = [0.1, 0.3, 0.5, 0.7], [[0.0, 30.0], [0.0, 8.0]]
+    chosen, seen = search_operating_point(truths, detections, predict, 2, grid, sides)
+    assert len(seen) == 16 * 4
+    # one call of the relation model for the whole search, every image's distinct subsets in it once, each scored once
+    assert len(batches) == 1 and len(batches[0]) == len(set(batches[0])) == len(scored) == len(set(scored))
+    assert len(scored) < 2 * len(seen)
+    assert seen == pytest.approx({p: end_to_end_pair_f1(truths, detections, p, tightest_vehicle, 0.0, 0.5)
+                                  for p in seen})
+    assert seen[chosen] == max(seen.values()) == 100.0
