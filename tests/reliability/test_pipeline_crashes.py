@@ -58,8 +58,9 @@ def test_sigkill_during_relation_training_leaves_no_entry_and_rerun_resumes_from
                                                                                                   upstream):
     data = tiny
     copy_upstream(upstream[0], tmp_path / "cache")  # data and priors are hits: the kill is about relation
-    # enough epochs that the kill (polled every 50 ms) lands mid-training even when epochs take 0.1 s
-    extra = ["pipeline.until=relation", "relation.train.epochs=30", "relation.train.patience=100"]
+    # the pipeline is frozen as soon as a whole checkpoint exists (frozen_with_checkpoint), so the first member's
+    # first epoch is enough to kill it mid-training: a few epochs leave the rest to resume
+    extra = ["pipeline.until=relation", "relation.train.epochs=6", "relation.train.patience=100"]
     log = tmp_path / "killed.log"
     with log.open("w") as fh:
         proc = subprocess.Popen(pipeline_command(data, tmp_path / "cache", *extra), cwd=tmp_path,
