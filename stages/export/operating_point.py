@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
-from stages.inference.runtime import keep_at
+from stages.inference.runtime import keep_at, kept_mask
 from stages.metrics import Counts, score_image
 from stages.word_format import Record
 
@@ -98,13 +98,7 @@ class SubsetScores:
             raise ValueError(f"operating point: {len(truths)} labelled images but {len(detections)} detection records")
         self.truths, self.detections, self.predict = list(truths), list(detections), predict
         self.min_box_px, self.match_iou = min_box_px, match_iou
-        self.counts: dict[tuple[int, bytes], np.ndarray] = {}
-        # what keep_at tests, per detection record: class, score and shorter side of every box
-        self._boxes = []
-        for d in self.detections:
-            xyxy = d.xyxy
-            self._boxes.append((d.class_ids.astype(int), d.scores,
-                                np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])))
+        self.counts: dict[tuple[int, bytes], Counts] = {}
 
     def pair_f1(self, points: Sequence[OperatingPoint]) -> list[float]:
         """pair_f1 (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
@@ -118,19 +112,12 @@ class SubsetScores:
         if new:
             preds = self.predict([point.keep(self.detections[i]) for (i, _), point in new.items()])
             for (i, key), pred in zip(new, preds, strict=True):
-                self.counts[i, key] = self._count(i, pred)
-        return [Counts(*(int(c) for c in np.sum([self.counts[k] for k in point_keys], axis=0))).percentages()["pair_f1"]
-                for point_keys in keys]
+                self.counts[i, key] = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
+        return [sum((self.counts[k] for k in point_keys), Counts()).percentages()["pair_f1"] for point_keys in keys]
 
     def _keys(self, point: OperatingPoint) -> list[tuple[int, bytes]]:
         """(image index, which of its boxes ``point`` keeps) for every image."""
-        thresholds, min_sides = np.asarray(point.thresholds, np.float64), np.asarray(point.min_sides, np.float64)
-        return [(i, ((scores >= thresholds[classes]) & (sides >= min_sides[classes])).tobytes())
-                for i, (classes, scores, sides) in enumerate(self._boxes)]
-
-    def _count(self, i: int, pred: Record) -> np.ndarray:
-        counts = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
-        return np.array([getattr(counts, f.name) for f in fields(Counts)], dtype=np.int64)
+        return [(i, kept_mask(d, point.thresholds, point.min_sides).tobytes()) for i, d in enumerate(self.detections)]
 
 
 class SubsetRelation:

@@ -166,18 +166,24 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
 # --- detector ---------------------------------------------------------------------------------------
 
-def keep_at(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> Record:
-    """The record with only the boxes whose score reaches their class's threshold (``thresholds[class_id]``)
-    and, with ``min_sides``, whose shorter side reaches their class's minimum (image pixels); box ids are kept,
-    so kept boxes still name the detections they came from."""
-    from dataclasses import replace
-
+def kept_mask(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> np.ndarray:
+    """Which boxes reach their class's score threshold (``thresholds[class_id]``) and, with ``min_sides``, their
+    class's minimum shorter side (image pixels)."""
     classes = record.class_ids.astype(int)
     keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[classes]
     if min_sides is not None:
         xyxy = record.xyxy
         shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
         keep &= shorter >= np.asarray(min_sides, dtype=np.float64)[classes]
+    return keep
+
+
+def keep_at(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> Record:
+    """The record with only the boxes ``kept_mask`` keeps; box ids are kept, so kept boxes still name the
+    detections they came from."""
+    from dataclasses import replace
+
+    keep = kept_mask(record, thresholds, min_sides)
     return replace(record, boxes=record.boxes[keep].copy(), relations=[], wheel_pairs=[])
 
 
