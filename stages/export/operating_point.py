@@ -126,11 +126,15 @@ class SubsetRelation:
     A graph's nodes are its boxes' crops and their pairwise priors, candidates and adjacency, each a function
     of its own box or its own pair only, so the graph of a subset of the boxes is the full graph with the
     other nodes' rows and columns removed. The search runs the relation model on many subsets of the same
-    detections; cropping them once makes it a matter of onnxruntime calls, and since many operating points
-    keep the same boxes of an image, each distinct subset is run once and remembered."""
+    detections; cropping them once makes it a matter of relation-model calls, and since many operating points
+    keep the same boxes of an image, each distinct subset is run once and remembered.
+
+    With ``network`` (the torch network the bundle's relation model was exported from) the backbone, nearly
+    all of the model's cost, runs once per box too (``stages.export.embedded_boxes``), and a subset costs only
+    the graph part; without it every subset goes to ``relation`` (``OnnxRelation``) whole."""
 
     def __init__(self, relation, detections: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
-                 batch_size: int = 16):
+                 batch_size: int = 16, network=None):
         self.relation, self.batch_size = relation, batch_size
         self.predicted: dict[tuple[str, tuple[int, ...]], Record] = {}
         self.graphs = {d.image: relation.graph(d, load_rgb(d)) for d in detections}
@@ -138,6 +142,12 @@ class SubsetRelation:
         for d in detections:
             if not np.array_equal(d.box_ids, np.arange(len(d.boxes))):
                 raise ValueError(f"{d.image}: detection box ids must be 0..N-1 (as detections_to_record writes them)")
+        self.embedded = None
+        if network is not None:
+            from stages.export.embedded_boxes import EmbeddedBoxes
+
+            self.embedded = EmbeddedBoxes(network, self.graphs, relation.flip_average)
+            self.batch_size = self.embedded.batch_size
 
     def subgraph(self, record: Record):
         from stages.relation.inputs import ImageGraph
@@ -150,8 +160,13 @@ class SubsetRelation:
     def __call__(self, records: list[Record]) -> list[Record]:
         keys = [(r.image, tuple(int(i) for i in r.box_ids)) for r in records]
         pending = list({k: r for k, r in zip(keys, records, strict=True) if k not in self.predicted}.items())
+        pending.sort(key=lambda item: len(item[0][1]))  # batches of like sizes: less padding
         for start in range(0, len(pending), self.batch_size):
-            chunk = pending[start:start + self.batch_size]
-            preds = self.relation.predict_graphs([r for _, r in chunk], [self.subgraph(r) for _, r in chunk])
-            self.predicted.update(zip((k for k, _ in chunk), preds, strict=True))
+            chunk = [r for _, r in pending[start:start + self.batch_size]]
+            if self.embedded is None:
+                preds = self.relation.predict_graphs(chunk, [self.subgraph(r) for r in chunk])
+            else:
+                rows = [r.box_ids.astype(int) for r in chunk]
+                preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk], rows))
+            self.predicted.update(zip((k for k, _ in pending[start:start + self.batch_size]), preds, strict=True))
         return [self.predicted[k] for k in keys]

@@ -217,10 +217,13 @@ def detector_ap(detector_dir: Path) -> dict[str, float]:
     return {k: float(v) for k, v in metrics.items() if k.startswith(("detector.val.", "detector.test."))}
 
 
-def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float) -> tuple[dict, dict, dict]:
+def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float, net=None,
+                           tolerance: float = 1e-4) -> tuple[dict, dict, dict]:
     """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
     end-to-end pair_f1 of the exported DeepWORD model (``stages.export.operating_point``); returns
-    ({class: threshold}, {class: minimum side in pixels}, metrics)."""
+    ({class: threshold}, {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
+    relation model was exported from, each box is embedded once (``stages.export.embedded_boxes``), after a
+    check that this gives the bundle's scores on every val image's whole graph within ``tolerance``."""
     from stages.export.operating_point import (
         OperatingPoint,
         SubsetRelation,
@@ -241,8 +244,16 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     detector = OnnxDetector(out_dir, threads=int(op_cfg.threads), at_operating_point=False)
     images = {r.image: load_image(ds.root, r) for r in val}
     detections = [detector.detect(images[r.image], r) for r in val]
-    relation = SubsetRelation(OnnxRelation(out_dir, "dynamic", int(op_cfg.threads)), detections,
-                              lambda rec: images[rec.image])
+    shipped = OnnxRelation(out_dir, "dynamic", int(op_cfg.threads))
+    relation = SubsetRelation(shipped, detections, lambda rec: images[rec.image], network=net)
+    split_metrics = {}
+    if relation.embedded is not None:
+        diff = relation.embedded.max_abs_diff_to(shipped.scores)
+        if diff > tolerance:
+            raise RuntimeError(f"export: the relation model embedded once per box differs from {RELATION_FILES['dynamic']} "
+                               f"by {diff:.2e} on the val graphs (tolerance {tolerance:.0e}); the operating-point "
+                               "search would not score the shipped model")
+        split_metrics["export.detector.operating_point_parity_max_abs_diff"] = diff
     match_iou = float(op_cfg.match_iou)
     chosen, seen = search_operating_point(val, detections, relation, len(classes), list(op_cfg.grid), side_grid,
                                           min_box_px, match_iou)
@@ -257,7 +268,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
                "export.detector.val_pair_f1": float(seen[chosen]),
                "export.detector.val_pair_f1_at_score_threshold": float(f1_floor),
                "export.detector.operating_point_evaluations": float(len(seen)),
-               "export.detector.operating_point_relation_runs": float(len(relation.predicted))}
+               "export.detector.operating_point_relation_runs": float(len(relation.predicted)), **split_metrics}
     return thresholds, min_sides, metrics
 
 
@@ -307,7 +318,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if det_net is not None:
         reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
         operating_point, min_sides, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
-                                                                        float(ex.min_box_px))
+                                                                        float(ex.min_box_px), net, tol)
         det_metrics.update(op_metrics)
         det_ap = detector_ap(inputs["detector"])
         write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides)

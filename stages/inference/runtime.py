@@ -136,9 +136,13 @@ class OnnxRelation:
 
     def predict_graphs(self, records: Sequence[Record], graphs: Sequence) -> list[Record]:
         """Records with decided relations, from their already built graphs (one batch)."""
+        return self.decide(records, self.scores(graphs))
+
+    def decide(self, records: Sequence[Record], scores: tuple[np.ndarray, ...]) -> list[Record]:
+        """Records with the relations decided from ``scores``: what ``scores`` returns for their graphs."""
         from stages.relation.predict import prediction_record
 
-        owner, couple, front, classes, cand, coords = self.scores(graphs)
+        owner, couple, front, classes, cand, coords = scores
         pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner, coords, self.min_containment)
         pred_couple = decode_couples(couple, classes, cand, self.threshold)
         return [prediction_record(rec, pred_owner[i], pred_couple[i], front[i], self.has_roles)
