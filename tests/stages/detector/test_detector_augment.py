@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from stages.detector.augment import flip_image, flip_record, photometric_jitter
 from stages.word_format import Record, load_image, parse_record
@@ -59,3 +60,35 @@ def test_photometric_jitter_hue_leaves_greys_and_is_off_at_zero():
     turned = photometric_jitter(colour, np.random.default_rng(1), 0.0, 0.0, 0.0, 0.5)
     assert not np.array_equal(turned, colour)
     assert np.abs(photometric_jitter(grey, np.random.default_rng(1), 0.0, 0.0, 0.0, 0.5).astype(int) - grey).max() <= 1
+
+
+def jitter_step_by_step(image, rng, brightness, contrast, saturation, hue):
+    """The jitter's definition, one float pass per step in the drawn order (what the one composed map must equal)."""
+    from stages.colour import hue_rotation
+
+    x = image.astype(np.float64)
+    grey = x @ np.array([0.299, 0.587, 0.114])
+    for i in rng.permutation(4 if hue > 0 else 3):
+        if i == 0:
+            x = x * rng.uniform(1 - brightness, 1 + brightness)
+        elif i == 1:
+            a = rng.uniform(1 - contrast, 1 + contrast)
+            x = x * a + grey.mean() * (1 - a)
+        elif i == 2:
+            a = rng.uniform(1 - saturation, 1 + saturation)
+            x = x * a + grey[..., None] * (1 - a)
+        else:
+            x = x @ hue_rotation(rng.uniform(-hue, hue)).T
+    return np.clip(np.rint(x), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_photometric_jitter_in_one_pass_equals_its_steps_in_their_drawn_order(seed):
+    image = np.random.default_rng(seed).integers(0, 256, size=(24, 40, 3), dtype=np.uint8)
+    strengths = (0.4, 0.4, 0.4, 0.5)
+    one_pass = photometric_jitter(image, np.random.default_rng(seed + 10), *strengths).astype(int)
+    steps = jitter_step_by_step(image, np.random.default_rng(seed + 10), *strengths).astype(int)
+    # one grey level at most, on the few pixels near a half level: OpenCV transforms 8-bit images in fixed point
+    assert np.abs(one_pass - steps).max() <= 1
+    assert (one_pass != steps).mean() < 0.1
+    assert np.abs(one_pass - image).mean() > 5          # it did change the image
