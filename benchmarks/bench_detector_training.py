@@ -1,5 +1,6 @@
 """Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
-against bf16 autocast, channels_last, and both, in the same process on the same batches; and the relation
+against bf16 autocast, channels_last, and both, in the same process on the same batches; the training loader's
+time per item and its share of an epoch beside the fastest step; and the relation
 network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
 against fp32.
 
@@ -112,10 +113,65 @@ def main(argv: list[str] | None = None) -> None:
     for name, ts in times.items():
         median = statistics.median(ts)
         print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
+    fastest = min(statistics.median(ts) for ts in times.values()) / args.batch
+    loader_share(det, fastest, args.steps)
     if not native_bf16:
         print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
         return
     relation_step_ratio(args.steps)
+
+
+def synthetic_scene(width: int, height: int, rng: np.random.Generator, objects: int = 12):
+    """A letterboxed-like training image (smooth background, filled boxes: noise would make the JPEG effect
+    unrealistically slow) and its record in input pixels, as ``CenterNetDataset.letterboxed`` caches them."""
+    import cv2
+
+    from stages.word_format import Record
+
+    ramp = np.linspace(60, 200, width, dtype=np.float32)
+    image = np.repeat(np.stack([ramp, ramp[::-1], np.full_like(ramp, 128)], -1)[None], height, 0).astype(np.uint8)
+    x1, y1 = rng.uniform(0, width - 60, objects), rng.uniform(0, height - 40, objects)
+    xyxy = np.column_stack([x1, y1, x1 + rng.uniform(8, 60, objects), y1 + rng.uniform(8, 40, objects)])
+    for box in xyxy.astype(int):
+        cv2.rectangle(image, tuple(box[:2]), tuple(box[2:]), tuple(int(c) for c in rng.integers(0, 255, 3)), -1)
+    boxes = np.column_stack([xyxy, np.ones(objects), rng.integers(0, 2, objects), np.arange(objects)])
+    return image, Record(image="synthetic.png", frame_id=0, camera="front", width=width, height=height, boxes=boxes,
+                         relations=[], wheel_pairs=[])
+
+
+def loader_share(det: dict, step_seconds_per_image: float, rounds: int, items: int = 40) -> None:
+    """The detector's training loader per item (``CenterNetDataset.__getitem__`` with the default augmentation, on
+    cached letterboxed images, as from the second epoch on) at the quick profile's input (480x352, 320x256 crops)
+    and the full profile's (whole 640x480 images), against the fastest training step above per image: the share of
+    an epoch the loader takes when it runs in the training process (no loader workers, a CPU's default). The step
+    was timed on 320x256 crops; for whole 640x480 images it is scaled by the pixel count (a convolutional network's
+    cost grows with it)."""
+    import torch
+
+    from stages.detector.dataset import CenterNetDataset
+
+    print(f"\ntraining loader, median of {rounds} rounds of {items} items (default augmentation)")
+    print(f"{'input':<30} {'ms/item':>8} {'share of an in-process epoch':>29}")
+    for name, (width, height, crop) in {"quick: 480x352, 320x256 crops": (480, 352, [320, 256]),
+                                        "full: whole 640x480": (640, 480, None)}.items():
+        rng = np.random.default_rng(0)
+        augment = {**det["augment"], "crop": crop}
+        dataset = CenterNetDataset(".", [], width, height, 12, augment=augment, regression=det["regression"])
+        scenes = [synthetic_scene(width, height, rng) for _ in range(items)]
+        dataset.records = [record for _, record in scenes]
+        dataset._cache = dict(enumerate(scenes))
+        torch.manual_seed(0)
+        times = []
+        for _ in range(rounds):
+            start = time.perf_counter()
+            for i in range(items):
+                dataset[i]
+            times.append((time.perf_counter() - start) / items)
+        loader = statistics.median(times)
+        trained = crop or (width, height)
+        step = step_seconds_per_image * trained[0] * trained[1] / (320 * 256)
+        share = loader / (loader + step)
+        print(f"{name:<30} {1000 * loader:8.1f} {100 * share:28.0f}%")
 
 
 def relation_step_ratio(steps: int, images: int = 16) -> None:
