@@ -1,4 +1,5 @@
-"""How many DataLoader worker processes a training stage uses, decided at run time from where it trains.
+"""How many DataLoader worker processes a training stage (the detector's, the relation network's) uses, decided at
+run time from where it trains.
 
 ``auto`` (``null`` in the configs) means none on a CPU and several on an accelerator. On a CPU the loader's
 work and the training step share the same cores: on 2 cores a loader process beside the training process

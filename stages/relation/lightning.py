@@ -96,15 +96,21 @@ def collate_graphs(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tens
 
 
 class RelationDataModule(L.LightningDataModule):
+    """``num_workers`` loader processes for the training graphs (``stages.loader_workers``: none on a CPU, several
+    on a GPU, where the crops' augmentation in the training process, ~4-6 ms an image on one core, would bound
+    the epoch); validation has no augmentation and stays in the training process."""
+
     def __init__(self, train: SplitInputs, val: SplitInputs, batch_size: int, hflip: float = 0.0,
-                 augment: AugmentConfig | None = None, box_warp: BoxWarpConfig | None = None):
+                 augment: AugmentConfig | None = None, box_warp: BoxWarpConfig | None = None, num_workers: int = 0):
         super().__init__()
         self.train_split, self.val_split = train, val
         self.batch_size, self.hflip, self.augment, self.box_warp = batch_size, hflip, augment, box_warp
+        self.num_workers = int(num_workers)
 
     def train_dataloader(self) -> DataLoader:
         return DataLoader(GraphDataset(self.train_split, self.hflip, self.augment, self.box_warp),
-                          batch_size=self.batch_size, shuffle=True, collate_fn=collate_graphs)
+                          batch_size=self.batch_size, shuffle=True, collate_fn=collate_graphs,
+                          num_workers=self.num_workers, persistent_workers=self.num_workers > 0)
 
     def val_dataloader(self) -> DataLoader:
         return DataLoader(GraphDataset(self.val_split), batch_size=self.batch_size, collate_fn=collate_graphs)

@@ -161,6 +161,7 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     import torch
     from lightning.pytorch.callbacks import EarlyStopping
 
+    from stages.loader_workers import loader_workers
     from stages.relation.curves import CurveHistory
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
     from stages.replicas import check_replicas_agree
@@ -197,7 +198,8 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     module = new_module()
     augment = AugmentConfig.from_cfg(plain.get("augment"))
     box_warp = BoxWarpConfig.from_cfg(plain.get("box_warp"))
-    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment, box_warp)
+    workers = loader_workers(rel.train.get("num_workers"), tr.accelerator)
+    data = RelationDataModule(train, val, int(rel.train.batch_size), float(rel.train.hflip), augment, box_warp, workers)
     ckpt_dir = member_dir / "checkpoints"
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
@@ -207,7 +209,7 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     callbacks = [*weight_averaging(float(rel.train.get("ema_decay", 0.0))), *callbacks]
     logger = _tracking_logger() if index in (None, 0) else None  # one member's curves in the stage's run
     if logger is not None:  # the precision this machine trained in, beside the configured "auto"
-        logger.log_hyperparams({"relation.precision": precision})
+        logger.log_hyperparams({"relation.precision": precision, "relation.loader_workers": workers})
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
                         strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=FP32 if backbone_bf16 else precision,
                         logger=logger if logger is not None else False, callbacks=callbacks,

@@ -251,6 +251,31 @@ def test_stage_trains_saves_and_predicts(tmp_path):
 
 
 @pytest.mark.slow
+def test_loader_processes_train_reproducibly(tmp_path, monkeypatch):
+    """relation.train.num_workers: the training graphs (flips, crop augmentation, box warps) come from a loader
+    process, as on a GPU; its draws follow the training seed, so the same config trains the same weights. Left
+    null on a CPU, the stage loads in the training process."""
+    import stages.relation.lightning as relation_lightning
+
+    workers = []
+
+    class Recording(relation_lightning.RelationDataModule):
+        def train_dataloader(self):
+            loader = super().train_dataloader()
+            workers.append(loader.num_workers)
+            return loader
+
+    monkeypatch.setattr(relation_lightning, "RelationDataModule", Recording)
+    _write_dataset(tmp_path)
+    _, first = _run_stage(tmp_path, "workers_a", epochs=1, num_workers=1)
+    _, second = _run_stage(tmp_path, "workers_b", epochs=1, num_workers=1)
+    weights = [torch.load(d / "relation.pt", weights_only=True) for d in (first, second)]
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+    _run_stage(tmp_path, "cpu_default", epochs=1)   # num_workers null, trainer.accelerator cpu
+    assert workers == [1, 1, 0]
+
+
+@pytest.mark.slow
 def test_training_seed_changes_the_weights(tmp_path):
     """relation.train.seed (default: the root seed) is the seed the stage trains with: at one root seed,
     another training seed trains other weights, and relation.json records it."""
