@@ -15,8 +15,9 @@ import os
 
 from stages.precision import trains_on_gpu
 
-# Accelerated training measured the same with 10 and 14 workers (docs/detector.md, "On a GPU"): more only
-# costs memory, as each worker keeps its own cache of decoded images.
+# Accelerated training measured the same with 10 and 14 workers (docs/detector.md, "On a GPU"), at a time when each
+# worker decoded and kept its own copy of every image (the detector's images are now decoded once, before the
+# workers are forked, and shared: CenterNetDataset.preload).
 MAX_ACCELERATOR_WORKERS = 10
 
 

@@ -140,6 +140,14 @@ class DetectorDataModule(L.LightningDataModule):
         self.val_set = CenterNetDataset(root, val, augment=None, **size)
         self.batch_size, self.num_workers = batch_size, num_workers
 
+    def setup(self, stage: str) -> None:
+        """Every image decoded and letterboxed once, before any loader worker is forked (``CenterNetDataset.preload``)."""
+        from stages.loader_workers import usable_cores
+
+        threads = usable_cores()
+        self.train_set.preload(threads)
+        self.val_set.preload(threads)
+
     def _loader(self, dataset: CenterNetDataset, train: bool) -> DataLoader:
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=train, num_workers=self.num_workers,
                           drop_last=train and len(dataset) > self.batch_size,  # no 1-image BatchNorm batch

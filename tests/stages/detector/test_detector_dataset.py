@@ -90,3 +90,30 @@ def test_evaluation_items_are_the_whole_letterboxed_image(tmp_path):
     assert dataset.letterboxed(0)[0] is dataset.letterboxed(0)[0]  # decoded once, then cached
     with pytest.raises(ValueError, match="larger than the input size"):
         CenterNetDataset(tmp_path, [record], 96, 64, 8, augment={"crop": [128, 32]})
+
+
+def test_preloaded_images_are_the_lazily_loaded_ones_and_loader_processes_share_them(tmp_path, monkeypatch):
+    """DetectorDataModule.setup decodes every image once, with threads, before loader processes are forked: the
+    processes then read that cache and never decode an image themselves."""
+    import stages.detector.dataset as dataset_module
+    from stages.detector.lightning import DetectorDataModule
+
+    record = write_image(tmp_path)
+    records = [Record(image=record.image, frame_id=i, camera="front", width=record.width, height=record.height,
+                      boxes=record.boxes, relations=[], wheel_pairs=[]) for i in range(6)]
+    lazy = CenterNetDataset(tmp_path, records, 96, 64, max_objects=8)
+    data = DetectorDataModule(tmp_path, records, records[:2], 96, 64, {"flip": 0.5, "brightness": 0.2, "contrast": 0.2,
+                              "saturation": 0.2}, batch_size=2, num_workers=2, min_overlap=0.7, regression="ttfnet")
+    data.setup("fit")
+    assert len(data.train_set._cache) == 6 and len(data.val_set._cache) == 2
+    for i in range(6):
+        image, inside = data.train_set._cache[i]
+        assert np.array_equal(image, lazy.letterboxed(i)[0]) and np.array_equal(inside.boxes, lazy.letterboxed(i)[1].boxes)
+
+    def no_decoding(*args):
+        raise AssertionError("a loader process decoded an image")
+
+    monkeypatch.setattr(dataset_module, "load_image", no_decoding)  # the forked processes inherit it
+    batches = list(data.train_dataloader())
+    assert sum(len(b["index"]) for b in batches) == 6
+    assert sorted(torch.cat([b["index"] for b in batches]).tolist()) == list(range(6))
