@@ -162,11 +162,12 @@ class SubsetRelation:
         pending = list({k: r for k, r in zip(keys, records, strict=True) if k not in self.predicted}.items())
         pending.sort(key=lambda item: len(item[0][1]))  # batches of like sizes: less padding
         for start in range(0, len(pending), self.batch_size):
-            chunk = [r for _, r in pending[start:start + self.batch_size]]
+            part = pending[start:start + self.batch_size]
+            chunk = [r for _, r in part]
             if self.embedded is None:
                 preds = self.relation.predict_graphs(chunk, [self.subgraph(r) for r in chunk])
             else:
                 rows = [r.box_ids.astype(int) for r in chunk]
                 preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk], rows))
-            self.predicted.update(zip((k for k, _ in pending[start:start + self.batch_size]), preds, strict=True))
+            self.predicted.update(zip((k for k, _ in part), preds, strict=True))
         return [self.predicted[k] for k in keys]
