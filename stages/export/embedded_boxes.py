@@ -36,11 +36,11 @@ class EmbeddedBoxes:
         self.members = list(shipped.members) if isinstance(shipped, ShippedEnsemble) else [shipped]
         self.graphs, self.batch_size = graphs, int(batch_size)
         # the views a graph is scored in: as it is, and mirrored with relation.decode.flip_average
-        self.views: list[Callable[[ImageGraph], ImageGraph]] = [lambda g: g] + ([mirrored] if flip_average else [])
-        self.mirror = [False, True][: len(self.views)]
+        self.mirror = [False, True] if flip_average else [False]
         with torch.no_grad():
             # features[image][view] -> (members, n, hidden)
-            self.features = {image: [self._embed(view(g)) for view in self.views] for image, g in graphs.items()}
+            self.features = {image: [self._embed(mirrored(g) if m else g) for m in self.mirror]
+                             for image, g in graphs.items()}
 
     def _embed(self, graph: ImageGraph) -> torch.Tensor:
         crops = torch.from_numpy(np.ascontiguousarray(graph.crops))
@@ -58,12 +58,12 @@ class EmbeddedBoxes:
         classes = np.full((b, n), -1, np.int64)
         coords = np.zeros((b, n, 4), np.float32)
         adj, cand = np.zeros((b, n, n), np.float32), np.zeros((b, n, n), np.float32)
-        h = torch.zeros(len(self.views), len(self.members), b, n, hidden)
+        h = torch.zeros(len(self.mirror), len(self.members), b, n, hidden)
         for i, (image, idx) in enumerate(zip(images, rows, strict=True)):
             g, k, pairs = self.graphs[image], len(idx), np.ix_(idx, idx)
             classes[i, :k], coords[i, :k] = g.classes[idx], g.coords[idx]
             adj[i, :k, :k], cand[i, :k, :k] = g.adj[pairs], g.cand[pairs]
-            for v in range(len(self.views)):
+            for v in range(len(self.mirror)):
                 h[v, :, i, :k] = self.features[image][v][:, torch.from_numpy(np.asarray(idx, np.int64))]
         mirrored_coords = mirror_coords(coords.reshape(-1, 4)).reshape(coords.shape)
         mirrored_coords[classes < 0] = 0.0  # padding stays all-zero boxes, as the runtime pads mirrored graphs
