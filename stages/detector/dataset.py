@@ -91,11 +91,7 @@ class CenterNetDataset(Dataset):
         from concurrent.futures import ThreadPoolExecutor
 
         missing = [i for i in range(len(self.records)) if i not in self._cache]
-        if int(threads) <= 1 or len(missing) < 2:
-            for i in missing:
-                self.letterboxed(i)
-            return
-        with ThreadPoolExecutor(max_workers=int(threads)) as pool:
+        with ThreadPoolExecutor(max_workers=max(1, int(threads))) as pool:
             for i, item in zip(missing, pool.map(self._letterbox_uncached, missing), strict=True):
                 self._cache[i] = item
 

@@ -17,11 +17,12 @@ model up to float rounding, which the export stage checks on the val graphs befo
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
 
-from stages.relation.inputs import ImageGraph, mirror_coords, mirrored
+from stages.relation.inputs import ImageGraph, mirror_coords, mirrored, subgraph
 from stages.relation.model import mean_outputs
 
 
@@ -41,6 +42,8 @@ class EmbeddedBoxes:
             # features[image][view] -> (members, n, hidden)
             self.features = {image: [self._embed(mirrored(g) if m else g) for m in self.mirror]
                              for image, g in graphs.items()}
+        # the graphs without their crops (a zero-width stand-in), so that a subset's graph copies no pixels
+        self.nodes = {image: replace(g, crops=np.empty((len(g.classes), 0), np.uint8)) for image, g in graphs.items()}
 
     def _embed(self, graph: ImageGraph) -> torch.Tensor:
         crops = torch.from_numpy(np.ascontiguousarray(graph.crops))
@@ -51,20 +54,17 @@ class EmbeddedBoxes:
 
     def scores(self, images: Sequence[str], rows: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
         """(owner, couple, front, classes, cand, coords) for the graphs of ``graphs[images[i]]`` restricted to its
-        nodes ``rows[i]`` (a batch, padded to its largest subset as ``stages.inference.runtime.pad_graphs`` pads:
-        classes -1, every other input zero)."""
-        b, n = len(images), max([len(r) for r in rows] + [1])
-        hidden = self.members[0].net.cfg.hidden
-        classes = np.full((b, n), -1, np.int64)
-        coords = np.zeros((b, n, 4), np.float32)
-        adj, cand = np.zeros((b, n, n), np.float32), np.zeros((b, n, n), np.float32)
-        h = torch.zeros(len(self.mirror), len(self.members), b, n, hidden)
+        nodes ``rows[i]`` (a batch, padded to its largest subset by ``stages.inference.runtime.pad_graphs``)."""
+        from stages.inference.runtime import pad_graphs
+
+        feed, classes = pad_graphs([subgraph(self.nodes[image], idx) for image, idx in zip(images, rows, strict=True)],
+                                   0, crops=False)
+        coords, adj, cand = feed["coords"], feed["adj"], feed["cand"]
+        b, n = classes.shape
+        h = torch.zeros(len(self.mirror), len(self.members), b, n, self.members[0].net.cfg.hidden)
         for i, (image, idx) in enumerate(zip(images, rows, strict=True)):
-            g, k, pairs = self.graphs[image], len(idx), np.ix_(idx, idx)
-            classes[i, :k], coords[i, :k] = g.classes[idx], g.coords[idx]
-            adj[i, :k, :k], cand[i, :k, :k] = g.adj[pairs], g.cand[pairs]
             for v in range(len(self.mirror)):
-                h[v, :, i, :k] = self.features[image][v][:, torch.from_numpy(np.asarray(idx, np.int64))]
+                h[v, :, i, :len(idx)] = self.features[image][v][:, torch.from_numpy(np.asarray(idx, np.int64))]
         mirrored_coords = mirror_coords(coords.reshape(-1, 4)).reshape(coords.shape)
         mirrored_coords[classes < 0] = 0.0  # padding stays all-zero boxes, as the runtime pads mirrored graphs
         adj_t, cand_t = torch.from_numpy(adj), torch.from_numpy(cand)

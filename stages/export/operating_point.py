@@ -150,12 +150,9 @@ class SubsetRelation:
             self.batch_size = self.embedded.batch_size
 
     def subgraph(self, record: Record):
-        from stages.relation.inputs import ImageGraph
+        from stages.relation.inputs import subgraph
 
-        g, idx = self.graphs[record.image], record.box_ids.astype(int)
-        pairs = np.ix_(idx, idx)
-        return ImageGraph(crops=g.crops[idx], coords=g.coords[idx], classes=g.classes[idx], valid=g.valid[idx],
-                          adj=g.adj[pairs], cand=g.cand[pairs])
+        return subgraph(self.graphs[record.image], record.box_ids)
 
     def __call__(self, records: list[Record]) -> list[Record]:
         keys = [(r.image, tuple(int(i) for i in r.box_ids)) for r in records]
@@ -167,7 +164,7 @@ class SubsetRelation:
             if self.embedded is None:
                 preds = self.relation.predict_graphs(chunk, [self.subgraph(r) for r in chunk])
             else:
-                rows = [r.box_ids.astype(int) for r in chunk]
-                preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk], rows))
+                preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk],
+                                                                         [r.box_ids for r in chunk]))
             self.predicted.update(zip((k for k, _ in part), preds, strict=True))
         return [self.predicted[k] for k in keys]

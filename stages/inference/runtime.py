@@ -64,19 +64,25 @@ def read_bundle(bundle_dir: str | os.PathLike) -> dict:
 
 # --- relation ---------------------------------------------------------------------------------------
 
-def pad_graphs(graphs: Sequence, size: int, n: int | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def pad_graphs(graphs: Sequence, size: int, n: int | None = None,
+               crops: bool = True) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Graphs (``stages.relation.inputs.ImageGraph``, crops ``size`` x ``size``) -> the network's feed,
-    padded to ``n`` objects (default: the largest graph), and the (B, n) classes (-1 for padding)."""
+    padded to ``n`` objects (default: the largest graph), and the (B, n) classes (-1 for padding). ``crops=False``:
+    without the crops (for a model whose backbone features are computed elsewhere)."""
     n = max([len(g.classes) for g in graphs] + [1]) if n is None else n
     b = len(graphs)
-    feed = {"crops": np.zeros((b, n, 3, size, size), np.uint8), "coords": np.zeros((b, n, 4), np.float32),
-            "adj": np.zeros((b, n, n), np.float32), "cand": np.zeros((b, n, n), np.float32)}
+    # in the order of RELATION_INPUTS: some callers pass the feed's values positionally
+    feed = {"crops": np.zeros((b, n, 3, size, size), np.uint8)} if crops else {}
+    feed |= {"coords": np.zeros((b, n, 4), np.float32), "adj": np.zeros((b, n, n), np.float32),
+             "cand": np.zeros((b, n, n), np.float32)}
     classes = np.full((b, n), -1, np.int64)
     for i, g in enumerate(graphs):
         k = len(g.classes)
         if k > n:
             raise ValueError(f"a graph has {k} objects, more than the model's {n}")
-        feed["crops"][i, :k], feed["coords"][i, :k] = g.crops, g.coords
+        if crops:
+            feed["crops"][i, :k] = g.crops
+        feed["coords"][i, :k] = g.coords
         feed["adj"][i, :k, :k], feed["cand"][i, :k, :k] = g.adj, g.cand
         classes[i, :k] = g.classes
     return feed, classes

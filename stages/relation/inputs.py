@@ -218,6 +218,15 @@ def mirrored(graph: ImageGraph) -> ImageGraph:
     return replace(graph, crops=np.ascontiguousarray(graph.crops[..., ::-1]), coords=mirror_coords(graph.coords))
 
 
+def subgraph(graph: ImageGraph, rows: np.ndarray) -> ImageGraph:
+    """The graph of a subset of its boxes (``rows``, in order): every node field and pair field is a function of its
+    own box or pair only, so it is the whole graph with the other nodes' rows and columns removed."""
+    rows = np.asarray(rows, dtype=int)
+    pairs = np.ix_(rows, rows)
+    return ImageGraph(crops=graph.crops[rows], coords=graph.coords[rows], classes=graph.classes[rows],
+                      valid=graph.valid[rows], adj=graph.adj[pairs], cand=graph.cand[pairs])
+
+
 def build_graph(rec: Record, rgb: np.ndarray, cfg: InputConfig, wheel_vehicle: PriorFn,
                 wheel_wheel: PriorFn) -> ImageGraph:
     """Nodes and edges of one image from its boxes (annotated or detected) and its RGB image."""

@@ -13,7 +13,7 @@ from stages.export.embedded_boxes import EmbeddedBoxes
 from stages.export.onnx_export import export_relation
 from stages.export.operating_point import SubsetRelation, search_operating_point
 from stages.inference.runtime import RELATION_FILES, OnnxRelation
-from stages.relation.inputs import ImageGraph
+from stages.relation.inputs import subgraph
 from stages.relation.model import RelationEnsemble
 from stages.word_format import load_image, open_dataset
 from tests.stages.export.test_export_parity import random_graphs, small_net
@@ -32,12 +32,6 @@ def ensemble_bundle(exported, tmp_path_factory):
     meta["relation"]["decode"].update(flip_average=True, threshold=0.1)
     (bundle / "export.json").write_text(json.dumps(meta))
     return net, bundle
-
-
-def subgraph(g: ImageGraph, idx: np.ndarray) -> ImageGraph:
-    pairs = np.ix_(idx, idx)
-    return ImageGraph(crops=g.crops[idx], coords=g.coords[idx], classes=g.classes[idx], valid=g.valid[idx],
-                      adj=g.adj[pairs], cand=g.cand[pairs])
 
 
 def test_subsets_score_as_the_shipped_model_scores_them_whole(ensemble_bundle):
