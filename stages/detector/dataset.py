@@ -70,6 +70,8 @@ class CenterNetDataset(Dataset):
         if self.crop and (self.crop[0] > input_width or self.crop[1] > input_height):
             raise ValueError(f"detector.augment.crop={list(self.crop)} is larger than the input size "
                              f"{input_width}x{input_height}")
+        if augment and augment.get("mosaic", 0.0) > 0:
+            self.max_objects = 4 * max_objects  # a mosaic holds up to four images' boxes
         self._cache: dict[int, tuple[np.ndarray, Record]] = {}
 
     def __len__(self) -> int:
@@ -109,14 +111,11 @@ class CenterNetDataset(Dataset):
         # makes the augmentation reproducible.
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()).item()))
         aug = self.augment
-        if rng.random() < aug["flip"]:
-            image, record = flip_image(image), flip_record(record)
-        xyxy, classes = record.xyxy, record.class_ids
-        low, high = aug.get("scale") or (1.0, 1.0)
-        if high > low or low != 1.0:
-            # multi-scale training (CenterNet's random scale): objects at sizes between the input scale's
-            # neighbours, so near and far vehicles of other lenses and image sizes are not new sizes
-            image, xyxy = rescale(image, xyxy, float(rng.uniform(low, high)))
+        mosaic = aug.get("mosaic", 0.0)
+        if mosaic > 0 and rng.random() < mosaic:  # no draw when off: the same config trains the same network
+            image, xyxy, classes = self.mosaic(image, record, rng)
+        else:
+            image, xyxy, classes = self.flipped_rescaled(image, record, rng)
         if self.crop is not None or image.shape[:2] != (self.input_height, self.input_width):
             cw, ch = self.crop or (self.input_width, self.input_height)
             # the window anywhere over the image, or the image anywhere inside a larger window
@@ -129,6 +128,51 @@ class CenterNetDataset(Dataset):
         image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
                                aug.get("grayscale", 0.0))
         return image, xyxy, classes
+
+    def flipped_rescaled(self, image: np.ndarray, record: Record, rng: np.random.Generator,
+                         shrink: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The geometric draws of one image: a horizontal flip and a random scale (times ``shrink``).
+        Returns (image, boxes, classes)."""
+        if rng.random() < self.augment["flip"]:
+            image, record = flip_image(image), flip_record(record)
+        xyxy = record.xyxy
+        low, high = self.augment.get("scale") or (1.0, 1.0)
+        if high > low or low != 1.0 or shrink != 1.0:
+            # multi-scale training (CenterNet's random scale): objects at sizes between the input scale's
+            # neighbours, so near and far vehicles of other lenses and image sizes are not new sizes
+            image, xyxy = rescale(image, xyxy, float(rng.uniform(low, high)) * shrink)
+        return image, xyxy, record.class_ids
+
+    def mosaic(self, image: np.ndarray, record: Record,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """YOLOv4's mosaic: this image and three others drawn from the dataset, each flipped and rescaled on its own,
+        meet at a random point of a canvas twice the training window's size, each filling the quadrant on its side
+        of that point (boxes less than ``crop_min_visible`` inside their quadrant are dropped, as at a crop's
+        edge); the whole is shrunk by a factor drawn from ``mosaic_scale`` (applied to each image as it is
+        rescaled, one resize per image) before the usual window is cut from it. A step then sees four scenes'
+        vehicles instead of one, many of them small and crowded -- the sizes and the occlusions the detector
+        misses most (docs/detector.md) -- from the same training images."""
+        cw, ch = self.crop or (self.input_width, self.input_height)
+        low, high = self.augment.get("mosaic_scale") or (0.5, 1.0)
+        shrink = float(rng.uniform(low, high))
+        width, height = max(4, round(2 * cw * shrink)), max(4, round(2 * ch * shrink))
+        xc = int(rng.integers(width // 4, 3 * width // 4 + 1))
+        yc = int(rng.integers(height // 4, 3 * height // 4 + 1))
+        canvas = np.empty((height, width, 3), dtype=np.uint8)
+        boxes, classes = [], []
+        others = rng.integers(0, len(self.records), 3)
+        sources = [(image, record)] + [self.letterboxed(int(i)) for i in others]
+        quadrants = [(0, 0, xc, yc), (xc, 0, width, yc), (0, yc, xc, height), (xc, yc, width, height)]
+        for (source, source_record), (x0, y0, x1, y1) in zip(sources, quadrants, strict=True):
+            piece, xyxy, cls = self.flipped_rescaled(source, source_record, rng, shrink)
+            h, w = piece.shape[:2]
+            dx = xc - w if x0 == 0 else xc  # the piece's corner nearest the meeting point sits on it
+            dy = yc - h if y0 == 0 else yc
+            canvas[y0:y1, x0:x1] = crop_or_pad(piece, x0 - dx, y0 - dy, x1 - x0, y1 - y0, PAD_VALUE)
+            kept, keep = crop_boxes(xyxy, x0 - dx, y0 - dy, x1 - x0, y1 - y0, self.augment.get("crop_min_visible", 0.5))
+            boxes.append(kept + np.array([x0, y0, x0, y0], dtype=np.float64))
+            classes.append(cls[keep])
+        return canvas, np.concatenate(boxes), np.concatenate(classes)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         image, record = self.letterboxed(index)
