@@ -11,6 +11,7 @@ is a run trained on other data (``relation.train.detection_noise``, ``relation.b
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,31 +38,33 @@ TABLE2 = tuple(Row(label, ("experiment=table2", f"table2_row={name}")) for label
 TABLE3_ROW = Row("DeepWORD (default)", ("experiment=table3",))
 
 
+@functools.cache
+def row_definition(row: Row, profile: str | None, conf_dir: Path = CONF) -> dict[str, str]:
+    """The flattened parameters that define ``row`` under ``profile`` (None: the default profile), composed once
+    per process (Hydra's compose API over ``conf_dir``: about half a second a row). Callers must not modify it."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from omegaconf import OmegaConf
+
+    overrides = [*row.overrides, *([f"profile={profile}"] if profile else [])]
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(version_base="1.3", config_dir=str(conf_dir)):
+            cfg = OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
+    finally:
+        GlobalHydra.instance().clear()
+    return {k: v for k, v in flatten_params(cfg).items() if k.startswith(DEFINING_PREFIX) and k not in NOT_DEFINING}
+
+
 class RowMatcher:
-    """Composes each row's configuration once per profile (Hydra's compose API over ``conf/``)."""
+    """Tells which runs are which row, from each row's composed configuration (``row_definition``)."""
 
     def __init__(self, conf_dir: Path = CONF):
         self.conf_dir = conf_dir
-        self._definitions: dict[tuple[Row, str | None], dict[str, str]] = {}
 
     def definition(self, row: Row, profile: str | None) -> dict[str, str]:
         """The flattened parameters that define ``row`` under ``profile`` (None: the default profile)."""
-        key = (row, profile)
-        if key not in self._definitions:
-            from hydra import compose, initialize_config_dir
-            from hydra.core.global_hydra import GlobalHydra
-            from omegaconf import OmegaConf
-
-            overrides = [*row.overrides, *([f"profile={profile}"] if profile else [])]
-            GlobalHydra.instance().clear()
-            try:
-                with initialize_config_dir(version_base="1.3", config_dir=str(self.conf_dir)):
-                    cfg = OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
-            finally:
-                GlobalHydra.instance().clear()
-            self._definitions[key] = {k: v for k, v in flatten_params(cfg).items()
-                                      if k.startswith(DEFINING_PREFIX) and k not in NOT_DEFINING}
-        return self._definitions[key]
+        return row_definition(row, profile, self.conf_dir)
 
     def matches(self, row: Row, run: RunRecord) -> bool:
         """Whether ``run`` is ``row``: its defining parameters equal the row's. A parameter the run does not

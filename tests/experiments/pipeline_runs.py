@@ -5,6 +5,8 @@ module name for every test folder's conftest.)"""
 
 from __future__ import annotations
 
+import copy
+import functools
 import os
 import socket
 import subprocess
@@ -31,11 +33,17 @@ TINY = ["profile=smoke", "relation.train.limit_train_images=12",
 
 
 def compose_config(overrides: list[str]) -> dict:
-    """The resolved root config (a plain dict) for ``overrides``, as the pipeline would see it."""
+    """The resolved root config (a plain dict, the caller's own copy) for ``overrides``, as the pipeline would see
+    it; composed once per test process (half a second to a second each, asked for again by many tests)."""
+    return copy.deepcopy(_composed(tuple(overrides)))
+
+
+@functools.cache
+def _composed(overrides: tuple[str, ...]) -> dict:
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-            cfg = compose("config", overrides=overrides)
+            cfg = compose("config", overrides=list(overrides))
             return OmegaConf.to_container(cfg, resolve=True)
     finally:
         GlobalHydra.instance().clear()
