@@ -71,6 +71,30 @@ def test_multi_scale_keeps_image_and_boxes_consistent(tmp_path, crop):
     assert len(sizes) > 4  # the scale changed
 
 
+def test_mosaic_boxes_lie_on_their_objects_from_four_images(tmp_path):
+    """Every box of a mosaic lies on its white square whichever of the four images it came from, and a mosaic
+    holds more boxes than the one image has (the four images are drawn from the dataset: here one image, four
+    times)."""
+    record = write_image(tmp_path)
+    augment = {"flip": 0.5, "brightness": 0.0, "contrast": 0.0, "saturation": 0.0, "scale": [0.8, 1.2],
+               "crop": [64, 32], "crop_min_visible": 0.5, "mosaic": 1.0, "mosaic_scale": [0.5, 1.0]}
+    dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=4, augment=augment)
+    assert dataset.max_objects == 16  # room for four images' boxes
+    torch.manual_seed(2)
+    counts = []
+    for _ in range(30):
+        image, xyxy, classes = dataset.mosaic(*dataset.letterboxed(0), np.random.default_rng(len(counts)))
+        assert image.shape[2] == 3 and 64 <= image.shape[1] <= 128 and 32 <= image.shape[0] <= 64
+        assert len(xyxy) == len(classes) and set(classes.tolist()) <= {0, 1}
+        for x1, y1, x2, y2 in xyxy:
+            inner = image[int(np.ceil(y1)) + 1:int(y2) - 1, int(np.ceil(x1)) + 1:int(x2) - 1]
+            assert inner.size == 0 or inner.min() >= 250
+        counts.append(len(xyxy))
+    assert max(counts) > 4  # boxes of more than one image
+    item = dataset[0]  # through the crop, jitter and targets
+    assert item["image"].shape == (32, 64, 3) and item["mask"].shape == (16,)
+
+
 def test_sensor_effects_keep_the_image_shape_and_type():
     from stages.detector.augment import sensor_effects
 
