@@ -3,7 +3,8 @@
 Each image is decoded and letterboxed to the network input size once and kept in memory (uint8) for
 the dataset's lifetime, so epochs pay neither the PNG decode nor the resize; the training's data module does
 it for every image before training (``preload``), so that loader worker processes share one copy. Training items are
-then augmented on that small uint8 image: a horizontal flip, a random scale (multi-scale training), an
+then augmented on that small uint8 image: for a share of them a mosaic of four images (``mosaic``), for the others
+a horizontal flip and a random scale (multi-scale training); then an
 optional random crop of ``crop`` = (width, height) (CenterNet's random-crop augmentation: the network is
 fully convolutional, so it trains on crops and still runs on the whole letterboxed image at inference, where
 small wheels keep the pixels of the full input scale; a rescaled image without a crop is cropped or padded
@@ -150,8 +151,8 @@ class CenterNetDataset(Dataset):
         of that point (boxes less than ``crop_min_visible`` inside their quadrant are dropped, as at a crop's
         edge); the whole is shrunk by a factor drawn from ``mosaic_scale`` (applied to each image as it is
         rescaled, one resize per image) before the usual window is cut from it. A step then sees four scenes'
-        vehicles instead of one, many of them small and crowded -- the sizes and the occlusions the detector
-        misses most (docs/detector.md) -- from the same training images."""
+        vehicles instead of one, many of them small or cut at an edge -- the vehicles the detector missed most --
+        from the same training images (docs/detector.md, "Mosaic": +4.6 points of val vehicle AP@0.5)."""
         cw, ch = self.crop or (self.input_width, self.input_height)
         low, high = self.augment.get("mosaic_scale") or (0.5, 1.0)
         shrink = float(rng.uniform(low, high))
