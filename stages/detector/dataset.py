@@ -122,13 +122,18 @@ class CenterNetDataset(Dataset):
             # the window anywhere over the image, or the image anywhere inside a larger window
             x0 = int(rng.integers(min(0, image.shape[1] - cw), max(0, image.shape[1] - cw) + 1))
             y0 = int(rng.integers(min(0, image.shape[0] - ch), max(0, image.shape[0] - ch) + 1))
-            image = crop_or_pad(image, x0, y0, cw, ch, PAD_VALUE)
-            xyxy, keep = crop_boxes(xyxy, x0, y0, cw, ch, aug.get("crop_min_visible", 0.5))
-            classes = classes[keep]
+            image, xyxy, classes = self.window(image, xyxy, classes, x0, y0, cw, ch)
         image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"], aug.get("hue", 0.0))
         image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
                                aug.get("grayscale", 0.0))
         return image, xyxy, classes
+
+    def window(self, image: np.ndarray, xyxy: np.ndarray, classes: np.ndarray, x0: int, y0: int, width: int,
+               height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``width`` x ``height`` window at (x0, y0) of an image (padded where it leaves it) with the boxes seen
+        through it: those less than ``crop_min_visible`` inside are dropped (``crop_boxes``)."""
+        kept, keep = crop_boxes(xyxy, x0, y0, width, height, self.augment.get("crop_min_visible", 0.5))
+        return crop_or_pad(image, x0, y0, width, height, PAD_VALUE), kept, classes[keep]
 
     def flipped_rescaled(self, image: np.ndarray, record: Record, rng: np.random.Generator,
                          shrink: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,10 +174,9 @@ class CenterNetDataset(Dataset):
             h, w = piece.shape[:2]
             dx = xc - w if x0 == 0 else xc  # the piece's corner nearest the meeting point sits on it
             dy = yc - h if y0 == 0 else yc
-            canvas[y0:y1, x0:x1] = crop_or_pad(piece, x0 - dx, y0 - dy, x1 - x0, y1 - y0, PAD_VALUE)
-            kept, keep = crop_boxes(xyxy, x0 - dx, y0 - dy, x1 - x0, y1 - y0, self.augment.get("crop_min_visible", 0.5))
+            canvas[y0:y1, x0:x1], kept, cls = self.window(piece, xyxy, cls, x0 - dx, y0 - dy, x1 - x0, y1 - y0)
             boxes.append(kept + np.array([x0, y0, x0, y0], dtype=np.float64))
-            classes.append(cls[keep])
+            classes.append(cls)
         return canvas, np.concatenate(boxes), np.concatenate(classes)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
