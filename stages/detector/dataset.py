@@ -73,6 +73,9 @@ class CenterNetDataset(Dataset):
                              f"{input_width}x{input_height}")
         if augment and augment.get("mosaic", 0.0) > 0:
             self.max_objects = 4 * max_objects  # a mosaic holds up to four images' boxes
+        # Switched off for the last epochs by ``lightning.CloseMosaic``; in shared memory so that loader workers
+        # (forked once, persistent) see the switch too.
+        self.mosaic_open = torch.ones((), dtype=torch.bool).share_memory_()
         self._cache: dict[int, tuple[np.ndarray, Record]] = {}
 
     def __len__(self) -> int:
@@ -113,7 +116,8 @@ class CenterNetDataset(Dataset):
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()).item()))
         aug = self.augment
         mosaic = aug.get("mosaic", 0.0)
-        if mosaic > 0 and rng.random() < mosaic:  # no draw when off: the same config trains the same network
+        # no draw when off or closed: a detector configured without mosaic trains as it did before mosaic existed
+        if mosaic > 0 and bool(self.mosaic_open) and rng.random() < mosaic:
             image, xyxy, classes = self.mosaic(image, record, rng)
         else:
             image, xyxy, classes = self.flipped_rescaled(image, record, rng)

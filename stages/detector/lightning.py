@@ -121,6 +121,19 @@ class CenterNetModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
+class CloseMosaic(L.Callback):
+    """YOLOv8's ``close_mosaic``: the last ``epochs`` training epochs see single images only, as the detector will
+    at test time -- whole vehicles at their own scale, the boxes its last steps fit (``CenterNetDataset.mosaic``).
+    Set at each epoch's start, so a run resumed from a checkpoint closes it again."""
+
+    def __init__(self, epochs: int):
+        self.epochs = int(epochs)
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        open_ = trainer.current_epoch < trainer.max_epochs - self.epochs
+        trainer.datamodule.train_set.mosaic_open.fill_(open_)
+
+
 class DetectorDataModule(L.LightningDataModule):
     """Train (augmented, shuffled) and val (plain) loaders over WORD records of one dataset root, with the
     targets of the model's box ``regression`` (``model_config(...)["regression"]``)."""

@@ -80,7 +80,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.checkpoints import best_and_latest, weight_averaging
     from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
     from stages.detector.curves import plot_curves
-    from stages.detector.lightning import CenterNetModule, DetectorDataModule
+    from stages.detector.lightning import CenterNetModule, CloseMosaic, DetectorDataModule
     from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
     from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
@@ -121,7 +121,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
         precision=precision, logger=loggers,
-        callbacks=[*weight_averaging(float(det.get("ema_decay", 0.0))), checkpoint, latest, *lightning_progress("detector")],
+        callbacks=[*weight_averaging(float(det.get("ema_decay", 0.0))), checkpoint, latest,
+                   CloseMosaic(det["augment"].get("mosaic_close_epochs", 0)), *lightning_progress("detector")],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)
     started = time.perf_counter()

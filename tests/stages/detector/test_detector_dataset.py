@@ -95,6 +95,31 @@ def test_mosaic_boxes_lie_on_their_objects_from_four_images(tmp_path):
     assert item["image"].shape == (32, 64, 3) and item["mask"].shape == (16,)
 
 
+def test_close_mosaic_trains_the_last_epochs_on_single_images(tmp_path, monkeypatch):
+    """``CloseMosaic`` shuts the mosaic for the last epochs only, and a closed dataset draws no mosaic even at
+    probability 1."""
+    from types import SimpleNamespace
+
+    from stages.detector.lightning import CloseMosaic
+
+    record = write_image(tmp_path)
+    augment = {"flip": 0.5, "brightness": 0.0, "contrast": 0.0, "saturation": 0.0, "crop": [64, 32],
+               "crop_min_visible": 0.5, "mosaic": 1.0, "mosaic_scale": [0.5, 1.0]}
+    dataset = CenterNetDataset(tmp_path, [record], 96, 64, max_objects=4, augment=augment)
+    trainer = SimpleNamespace(max_epochs=10, current_epoch=0, datamodule=SimpleNamespace(train_set=dataset))
+    opened = []
+    for epoch in range(10):
+        trainer.current_epoch = epoch
+        CloseMosaic(3).on_train_epoch_start(trainer, None)
+        opened.append(bool(dataset.mosaic_open))
+    assert opened == [True] * 7 + [False] * 3
+    monkeypatch.setattr(dataset, "mosaic", lambda *a: pytest.fail("a mosaic was drawn after closing"))
+    torch.manual_seed(3)
+    for _ in range(5):
+        image, _, _ = dataset.augmented(*dataset.letterboxed(0))
+        assert image.shape == (32, 64, 3)
+
+
 def test_sensor_effects_keep_the_image_shape_and_type():
     from stages.detector.augment import sensor_effects
 
