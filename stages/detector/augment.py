@@ -96,6 +96,13 @@ def sensor_effects(image: np.ndarray, rng: np.random.Generator, blur: float = 0.
     return out
 
 
+def rescaled_size(width: int, height: int, factor: float) -> tuple[int, int]:
+    """(width, height) of an image of this size after ``rescale`` by ``factor``."""
+    if factor == 1.0:
+        return width, height
+    return max(1, int(round(width * factor))), max(1, int(round(height * factor)))
+
+
 def rescale(image: np.ndarray, xyxy: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarray]:
     """The image resized by ``factor`` (area interpolation when shrinking) and its boxes scaled alike."""
     import cv2
@@ -103,10 +110,46 @@ def rescale(image: np.ndarray, xyxy: np.ndarray, factor: float) -> tuple[np.ndar
     if factor == 1.0:
         return image, np.asarray(xyxy, dtype=np.float64)
     h, w = image.shape[:2]
-    size = (max(1, int(round(w * factor))), max(1, int(round(h * factor))))
+    size = rescaled_size(w, h, factor)
     interp = cv2.INTER_AREA if factor < 1 else cv2.INTER_LINEAR
     scale = np.array([size[0] / w, size[1] / h, size[0] / w, size[1] / h])
     return cv2.resize(image, size, interpolation=interp), np.asarray(xyxy, dtype=np.float64) * scale
+
+
+def resized_region(image: np.ndarray, size: tuple[int, int], x0: int, y0: int, x1: int, y1: int
+                   ) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """Pixels ``[y0:y1, x0:x1]`` of ``rescale``'s resize of ``image`` to ``size`` (w, h), computed from the part of
+    the image they are drawn from, and the map (scale x, offset x, scale y, offset y) that takes the image's
+    coordinates to those of the returned pixels' grid (x' = x * scale + offset, region origin not subtracted).
+
+    A mosaic keeps about a quarter of each image it resizes, and the resizes were most of its cost. The part is
+    cut a few output pixels wider than the region, so that the resize's edge handling stays outside it, and
+    resized on its own: cv2.resize takes its scale from the sizes it is given, so the part's grid is the whole
+    resize's within about a pixel, not exactly. Boxes must therefore be mapped with the returned map, not with
+    ``size``: then pixels and boxes agree exactly."""
+    import cv2
+
+    h, w = image.shape[:2]
+    if size == (w, h):
+        return image[y0:y1, x0:x1], (1.0, 0.0, 1.0, 0.0)
+    (sx0, sx1, dx0, dx1), (sy0, sy1, dy0, dy1) = (_source_cut(x0, x1, w, size[0]), _source_cut(y0, y1, h, size[1]))
+    interp = cv2.INTER_AREA if size[0] < w or size[1] < h else cv2.INTER_LINEAR
+    part = cv2.resize(np.ascontiguousarray(image[sy0:sy1, sx0:sx1]), (dx1 - dx0, dy1 - dy0), interpolation=interp)
+    scale_x, scale_y = (dx1 - dx0) / (sx1 - sx0), (dy1 - dy0) / (sy1 - sy0)
+    return (part[y0 - dy0:y1 - dy0, x0 - dx0:x1 - dx0],
+            (scale_x, dx0 - sx0 * scale_x, scale_y, dy0 - sy0 * scale_y))
+
+
+def _source_cut(lo: int, hi: int, n_src: int, n_out: int) -> tuple[int, int, int, int]:
+    """(source start, source end, output start, output end) of one axis for ``resized_region``: the source pixels
+    that output pixels [lo, hi) of a resize from n_src to n_out pixels are drawn from, three output pixels wider
+    on each side (the whole axis's ends stay exact), and where they land."""
+    scale = n_out / n_src
+    margin = int(np.ceil(3 / scale))
+    start = max(0, int(np.floor(lo / scale)) - margin)
+    end = min(n_src, int(np.ceil(hi / scale)) + margin)
+    out_start, out_end = int(round(start * scale)), int(round(end * scale))
+    return start, end, out_start, max(out_start + 1, out_end)
 
 
 def crop_or_pad(image: np.ndarray, x0: int, y0: int, width: int, height: int, fill: tuple[int, ...]) -> np.ndarray:

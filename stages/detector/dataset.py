@@ -26,6 +26,8 @@ from stages.detector.augment import (
     flip_record,
     photometric_jitter,
     rescale,
+    rescaled_size,
+    resized_region,
     sensor_effects,
 )
 from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image
@@ -118,19 +120,31 @@ class CenterNetDataset(Dataset):
         mosaic = aug.get("mosaic", 0.0)
         # no draw when off or closed: a detector configured without mosaic trains as it did before mosaic existed
         if mosaic > 0 and bool(self.mosaic_open) and rng.random() < mosaic:
-            image, xyxy, classes = self.mosaic(image, record, rng)
+            image, xyxy, classes = self.mosaic(image, record, rng)  # already the training window
         else:
             image, xyxy, classes = self.flipped_rescaled(image, record, rng)
-        if self.crop is not None or image.shape[:2] != (self.input_height, self.input_width):
-            cw, ch = self.crop or (self.input_width, self.input_height)
-            # the window anywhere over the image, or the image anywhere inside a larger window
-            x0 = int(rng.integers(min(0, image.shape[1] - cw), max(0, image.shape[1] - cw) + 1))
-            y0 = int(rng.integers(min(0, image.shape[0] - ch), max(0, image.shape[0] - ch) + 1))
-            image, xyxy, classes = self.window(image, xyxy, classes, x0, y0, cw, ch)
+            origin = self.window_origin(rng, image.shape[1], image.shape[0])
+            if origin is not None:
+                image, xyxy, classes = self.window(image, xyxy, classes, *origin, *self.window_size)
         image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"], aug.get("hue", 0.0))
         image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
                                aug.get("grayscale", 0.0))
         return image, xyxy, classes
+
+    @property
+    def window_size(self) -> tuple[int, int]:
+        """(width, height) of a training item: the crop, or the whole input without one."""
+        return self.crop or (self.input_width, self.input_height)
+
+    def window_origin(self, rng: np.random.Generator, width: int, height: int) -> tuple[int, int] | None:
+        """Where the training window starts on a ``width`` x ``height`` image: anywhere over a larger image, the
+        image anywhere inside a larger window. None, and no draw, without a crop on an image of the input size."""
+        cw, ch = self.window_size
+        if self.crop is None and (width, height) == (cw, ch):
+            return None
+        x0 = int(rng.integers(min(0, width - cw), max(0, width - cw) + 1))
+        y0 = int(rng.integers(min(0, height - ch), max(0, height - ch) + 1))
+        return x0, y0
 
     def window(self, image: np.ndarray, xyxy: np.ndarray, classes: np.ndarray, x0: int, y0: int, width: int,
                height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -139,49 +153,78 @@ class CenterNetDataset(Dataset):
         kept, keep = crop_boxes(xyxy, x0, y0, width, height, self.augment.get("crop_min_visible", 0.5))
         return crop_or_pad(image, x0, y0, width, height, PAD_VALUE), kept, classes[keep]
 
-    def flipped_rescaled(self, image: np.ndarray, record: Record, rng: np.random.Generator,
-                         shrink: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The geometric draws of one image: a horizontal flip and a random scale (times ``shrink``).
-        Returns (image, boxes, classes)."""
-        if rng.random() < self.augment["flip"]:
-            image, record = flip_image(image), flip_record(record)
-        xyxy = record.xyxy
+    def flip_and_scale(self, rng: np.random.Generator, shrink: float = 1.0) -> tuple[bool, float]:
+        """The geometric draws of one image: a horizontal flip, and a random scale times ``shrink`` (1.0, and no
+        draw, when neither scales)."""
+        flip = bool(rng.random() < self.augment["flip"])
         low, high = self.augment.get("scale") or (1.0, 1.0)
         if high > low or low != 1.0 or shrink != 1.0:
             # multi-scale training (CenterNet's random scale): objects at sizes between the input scale's
             # neighbours, so near and far vehicles of other lenses and image sizes are not new sizes
-            image, xyxy = rescale(image, xyxy, float(rng.uniform(low, high)) * shrink)
+            return flip, float(rng.uniform(low, high)) * shrink
+        return flip, 1.0
+
+    def flipped_rescaled(self, image: np.ndarray, record: Record,
+                         rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One image through its geometric draws (``flip_and_scale``). Returns (image, boxes, classes)."""
+        flip, factor = self.flip_and_scale(rng)
+        if flip:
+            image, record = flip_image(image), flip_record(record)
+        image, xyxy = rescale(image, record.xyxy, factor)
         return image, xyxy, record.class_ids
 
     def mosaic(self, image: np.ndarray, record: Record,
                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """YOLOv4's mosaic: this image and three others drawn from the dataset, each flipped and rescaled on its own,
-        meet at a random point of a canvas twice the training window's size, each filling the quadrant on its side
-        of that point (boxes less than ``crop_min_visible`` inside their quadrant are dropped, as at a crop's
-        edge); the whole is shrunk by a factor drawn from ``mosaic_scale`` (applied to each image as it is
-        rescaled, one resize per image) before the usual window is cut from it. A step then sees four scenes'
-        vehicles instead of one, many of them small or cut at an edge -- the vehicles the detector missed most --
-        from the same training images (docs/detector.md, "Mosaic": +4.6 points of val vehicle AP@0.5)."""
-        cw, ch = self.crop or (self.input_width, self.input_height)
+        """YOLOv4's mosaic, cut to the training window: this image and three others drawn from the dataset, each
+        flipped and rescaled on its own, meet at a random point of a canvas twice the window's size, each filling
+        the quadrant on its side of that point (boxes less than ``crop_min_visible`` inside their quadrant are
+        dropped, as at a crop's edge); the whole is shrunk by a factor drawn from ``mosaic_scale`` (applied to
+        each image as it is rescaled) and the window is cut from it as from any training image. A step then sees
+        four scenes' vehicles instead of one, many of them small or cut at an edge -- the vehicles the detector
+        missed most -- from the same training images (docs/detector.md, "Mosaic": +4.6 points of val vehicle
+        AP@0.5).
+
+        The canvas is never drawn whole: every draw is made first, then each image resizes only the part of it
+        that shows in the window (``resized_region``; the resizes of whole images were most of a mosaic's cost)
+        and its boxes follow that part's own map."""
+        cw, ch = self.window_size
         low, high = self.augment.get("mosaic_scale") or (0.5, 1.0)
         shrink = float(rng.uniform(low, high))
         width, height = max(4, round(2 * cw * shrink)), max(4, round(2 * ch * shrink))
         xc = int(rng.integers(width // 4, 3 * width // 4 + 1))
         yc = int(rng.integers(height // 4, 3 * height // 4 + 1))
-        canvas = np.empty((height, width, 3), dtype=np.uint8)
-        boxes, classes = [], []
         others = rng.integers(0, len(self.records), 3)
         sources = [(image, record)] + [self.letterboxed(int(i)) for i in others]
+        draws = [self.flip_and_scale(rng, shrink) for _ in sources]
+        wx0, wy0 = self.window_origin(rng, width, height) or (0, 0)
+        out = np.empty((ch, cw, 3), dtype=np.uint8)
+        out[:] = PAD_VALUE
+        boxes, classes = [], []
         quadrants = [(0, 0, xc, yc), (xc, 0, width, yc), (0, yc, xc, height), (xc, yc, width, height)]
-        for (source, source_record), (x0, y0, x1, y1) in zip(sources, quadrants, strict=True):
-            piece, xyxy, cls = self.flipped_rescaled(source, source_record, rng, shrink)
-            h, w = piece.shape[:2]
-            dx = xc - w if x0 == 0 else xc  # the piece's corner nearest the meeting point sits on it
-            dy = yc - h if y0 == 0 else yc
-            canvas[y0:y1, x0:x1], kept, cls = self.window(piece, xyxy, cls, x0 - dx, y0 - dy, x1 - x0, y1 - y0)
-            boxes.append(kept + np.array([x0, y0, x0, y0], dtype=np.float64))
-            classes.append(cls)
-        return canvas, np.concatenate(boxes), np.concatenate(classes)
+        for (source, source_record), (flip, factor), (x0, y0, x1, y1) in zip(sources, draws, quadrants, strict=True):
+            h, w = source.shape[:2]
+            pw, ph = rescaled_size(w, h, factor)
+            dx = xc - pw if x0 == 0 else xc  # the piece's corner nearest the meeting point sits on it
+            dy = yc - ph if y0 == 0 else yc
+            # what of this piece the window shows: its quadrant, within the window and within the piece
+            rx0, ry0 = max(x0, wx0, dx), max(y0, wy0, dy)
+            rx1, ry1 = min(x1, wx0 + cw, dx + pw), min(y1, wy0 + ch, dy + ph)
+            if rx1 <= rx0 or ry1 <= ry0:
+                continue  # nothing of it shows, and none of its boxes would stay
+            if flip:
+                source, source_record = source[:, ::-1], flip_record(source_record)
+            pixels, (sx, ox, sy, oy) = resized_region(source, (pw, ph), rx0 - dx, ry0 - dy, rx1 - dx, ry1 - dy)
+            out[ry0 - wy0:ry1 - wy0, rx0 - wx0:rx1 - wx0] = pixels
+            xyxy = source_record.xyxy * [sx, sy, sx, sy] + [ox + dx, oy + dy, ox + dx, oy + dy]  # canvas
+            # cut at the quadrant's edges, then at the window's, as the canvas drawn whole was
+            kept, keep = crop_boxes(xyxy, x0, y0, x1 - x0, y1 - y0, self.augment.get("crop_min_visible", 0.5))
+            kept, keep_window = crop_boxes(kept + [x0, y0, x0, y0], wx0, wy0, cw, ch,
+                                           self.augment.get("crop_min_visible", 0.5))
+            boxes.append(kept)
+            classes.append(source_record.class_ids[keep][keep_window])
+        if not boxes:
+            return out, np.zeros((0, 4)), np.zeros(0, dtype=int)
+        return out, np.concatenate(boxes), np.concatenate(classes)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         image, record = self.letterboxed(index)

@@ -92,3 +92,33 @@ def test_photometric_jitter_in_one_pass_equals_its_steps_in_their_drawn_order(se
     assert np.abs(one_pass - steps).max() <= 1
     assert (one_pass != steps).mean() < 0.1
     assert np.abs(one_pass - image).mean() > 5          # it did change the image
+
+
+@pytest.mark.parametrize("factor", [0.37, 0.731, 0.993, 1.21])
+def test_a_resized_region_is_the_resized_image_there_and_its_map_places_boxes_exactly(factor):
+    """``resized_region`` gives the pixels the whole resize has in the region (up to its sub-pixel grid), and its
+    map takes a square's box onto the square's pixels: white a pixel inside, black a pixel outside."""
+    import cv2
+
+    from stages.detector.augment import rescale, rescaled_size, resized_region
+
+    rng = np.random.default_rng(int(factor * 1000))
+    image = np.zeros((352, 480, 3), dtype=np.uint8)
+    square = np.array([211.0, 97.0, 283.0, 161.0])
+    image[97:161, 211:283] = 255
+    image = cv2.GaussianBlur(image, (0, 0), 0.5)  # soft edges, as rendered objects have
+    size = rescaled_size(480, 352, factor)
+    whole, _ = rescale(image, np.zeros((0, 4)), factor)
+    for _ in range(10):
+        lo, hi = (square * factor)[:2] - 3, (square * factor)[2:] + 3  # regions about the square, cut anywhere
+        x0, y0 = int(rng.integers(0, lo[0])), int(rng.integers(0, lo[1]))
+        x1, y1 = int(rng.integers(hi[0], size[0] + 1)), int(rng.integers(hi[1], size[1] + 1))
+        pixels, (sx, ox, sy, oy) = resized_region(image, size, x0, y0, x1, y1)
+        assert pixels.shape == (y1 - y0, x1 - x0, 3)
+        assert np.abs(pixels.astype(int) - whole[y0:y1, x0:x1].astype(int)).mean() < 2.0
+        bx0, by0, bx1, by1 = square * [sx, sy, sx, sy] + [ox - x0, oy - y0, ox - x0, oy - y0]
+        inside = pixels[int(np.ceil(by0)) + 1:int(by1) - 1, int(np.ceil(bx0)) + 1:int(bx1) - 1]
+        assert inside.size and inside.min() >= 200
+        ring = np.ones(pixels.shape[:2], dtype=bool)
+        ring[max(0, int(by0) - 1):int(np.ceil(by1)) + 1, max(0, int(bx0) - 1):int(np.ceil(bx1)) + 1] = False
+        assert pixels[ring].max() <= 55
