@@ -199,7 +199,8 @@ class CenterNetDataset(Dataset):
         wx0, wy0 = self.window_origin(rng, width, height) or (0, 0)
         out = np.empty((ch, cw, 3), dtype=np.uint8)
         out[:] = PAD_VALUE
-        boxes, classes = [], []
+        min_visible = self.augment.get("crop_min_visible", 0.5)
+        boxes, classes = [np.zeros((0, 4))], [np.zeros(0, dtype=int)]  # a window may show no box at all
         quadrants = [(0, 0, xc, yc), (xc, 0, width, yc), (0, yc, xc, height), (xc, yc, width, height)]
         for (source, source_record), (flip, factor), (x0, y0, x1, y1) in zip(sources, draws, quadrants, strict=True):
             h, w = source.shape[:2]
@@ -217,13 +218,10 @@ class CenterNetDataset(Dataset):
             out[ry0 - wy0:ry1 - wy0, rx0 - wx0:rx1 - wx0] = pixels
             xyxy = source_record.xyxy * [sx, sy, sx, sy] + [ox + dx, oy + dy, ox + dx, oy + dy]  # canvas
             # cut at the quadrant's edges, then at the window's, as the canvas drawn whole was
-            kept, keep = crop_boxes(xyxy, x0, y0, x1 - x0, y1 - y0, self.augment.get("crop_min_visible", 0.5))
-            kept, keep_window = crop_boxes(kept + [x0, y0, x0, y0], wx0, wy0, cw, ch,
-                                           self.augment.get("crop_min_visible", 0.5))
+            kept, keep = crop_boxes(xyxy, x0, y0, x1 - x0, y1 - y0, min_visible)
+            kept, keep_window = crop_boxes(kept + [x0, y0, x0, y0], wx0, wy0, cw, ch, min_visible)
             boxes.append(kept)
             classes.append(source_record.class_ids[keep][keep_window])
-        if not boxes:
-            return out, np.zeros((0, 4)), np.zeros(0, dtype=int)
         return out, np.concatenate(boxes), np.concatenate(classes)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
