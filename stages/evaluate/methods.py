@@ -26,6 +26,7 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
+from stages.evaluate.fallback import ClaimFallback
 from stages.word_format import Dataset, Record, boxes_only, read_records
 
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
@@ -75,6 +76,11 @@ class EvalContext:
     def couple_rule(self) -> CoupleRule:
         return fit_couple_rule(self.train, self.grids.couple_tolerance)
 
+    @cached_property
+    def logic(self):
+        """The paper's IoU rule fitted on train: its own row, and the fallback of ``deepword_then_logic``."""
+        return fit_logic(self.train, self.couple_rule, self.grids.logic_iou)
+
 
 def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
@@ -90,13 +96,20 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     return factory
 
 
+def deepword_then_logic(ctx: EvalContext):
+    """DeepWORD's claims, and the IoU rule's for the wheels DeepWORD leaves unclaimed (stages/evaluate/fallback.py)."""
+    deepword = deepword_onnx("deepword")(ctx)
+    return None if deepword is None else ClaimFallback(deepword, ctx.logic)
+
+
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
-    "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule, ctx.grids.logic_iou),
+    "logic": lambda ctx: ctx.logic,
     "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule, ctx.grids.logic_plus,
                                              ctx.grids.logic_plus_rounds),
     "prior": lambda ctx: fit_prior(ctx.train, ctx.priors, ctx.grids.prior_owner, ctx.grids.prior_couple),
     "deepword": deepword_onnx("deepword"),
     "deepword_int8": deepword_onnx("deepword_int8"),
+    "deepword_then_logic": deepword_then_logic,
 }
 
 

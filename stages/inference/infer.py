@@ -5,8 +5,9 @@ exported models in onnxruntime (torch is never imported on this path).
     deepword infer --dataset ROOT --out DIR      on the dataset's own boxes (the ground-truth-box setting)
     deepword infer --dataset ROOT --out DIR --detect    on detected boxes (end to end)
 
-Options: ``--method deepword|deepword_int8|logic|logic_plus|prior`` (the baselines use the thresholds the
-pipeline's evaluate stage fitted on train: its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
+Options: ``--method deepword|deepword_int8|logic|logic_plus|prior|deepword_then_logic`` (the baselines use the
+thresholds the pipeline's evaluate stage fitted on train: its ``baselines.json``; ``deepword_then_logic`` is DeepWORD
+with the IoU rule's claim for each wheel DeepWORD leaves unclaimed); ``--calibration FILE`` (a WoodScape-style
 JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
 ``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
 a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
@@ -38,7 +39,8 @@ from stages.inference.runtime import METHOD_VARIANTS
 from stages.word_format import CAMERAS, DatasetError, Record, boxes_only, write_records
 
 BASELINES = ("logic", "logic_plus", "prior")
-METHODS = (*METHOD_VARIANTS, *BASELINES)
+FALLBACKS = {"deepword_then_logic": ("deepword", "logic")}   # stages/evaluate/fallback.py: (primary, fallback)
+METHODS = (*METHOD_VARIANTS, *BASELINES, *FALLBACKS)
 PREDICTIONS_FILE = "labels.jsonl"
 DETECTIONS_FILE = "detections.jsonl"
 OVERLAY_DIR = "overlays"
@@ -91,6 +93,12 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
 
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
+    if name in FALLBACKS:
+        from stages.evaluate.fallback import ClaimFallback
+
+        primary, fallback = FALLBACKS[name]
+        return ClaimFallback(build_method(primary, dirs, root, threads, load_rgb),
+                             build_method(fallback, dirs, root, threads, load_rgb), name)
     if name in METHOD_VARIANTS:
         from stages.inference.runtime import deepword_method
 

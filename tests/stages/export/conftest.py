@@ -110,7 +110,8 @@ def evaluated(upstream, exported, tmp_path_factory) -> Path:
     from stages.evaluate.stage import run
 
     out = tmp_path_factory.mktemp("evaluate")
-    cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "prior", "deepword", "deepword_int8"],
+    cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["logic", "prior", "deepword", "deepword_int8",
+                                                     "deepword_then_logic"],
            "box_sources": ["gt", "detected"], "fit_images": 20, "gallery_images": 2,
            "baseline_grids": OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids}
     run(OmegaConf.create({"eval": cfg, "seed": 0}), {**upstream, "export": exported[0]}, out)

@@ -8,7 +8,7 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     _, metrics = exported
     report = json.loads((evaluated / "report.json").read_text())
     assert set(report["results"]) == {"gt", "detected"}
-    methods = {"logic", "prior", "deepword", "deepword_int8"}
+    methods = {"logic", "prior", "deepword", "deepword_int8", "deepword_then_logic"}
     assert set(report["results"]["gt"]) == methods
     assert set(report["results"]["detected"]) == methods | {"relation_oracle"}  # the ceiling of the detections
     ceiling = report["results"]["detected"]["relation_oracle"]
@@ -38,6 +38,22 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
             precision = 100.0 * e["found"] / (e["found"] + false) if e["found"] + false else 100.0
             assert recall == scores["pair_recall"] and precision == scores["pair_precision"]
     assert all(report["pair_errors"]["gt"]["deepword"][s]["wheel_missed"] == 0 for s in ("easy", "hard", "mixed"))
+    # DeepWORD, then the IoU rule: every DeepWORD claim kept, so it finds every pair DeepWORD finds
+    for boxes in ("gt", "detected"):
+        for subset in ("easy", "hard", "mixed"):
+            errors = report["pair_errors"][boxes]
+            assert errors["deepword_then_logic"][subset]["found"] >= errors["deepword"][subset]["found"]
+    from stages.word_format import read_records
+
+    by_method = {m: {r.image: r for r in read_records(evaluated / "predictions" / f"detected_{m}.jsonl",
+                                                      allow_empty=True)}
+                 for m in ("deepword", "deepword_then_logic")}
+    for image, rec in by_method["deepword"].items():
+        combined = by_method["deepword_then_logic"][image].relations
+        assert combined[:len(rec.relations)] == rec.relations
+        wheels = [w for _, w, _ in combined]
+        assert len(wheels) == len(set(wheels))
+
     # disagreements drawn on both box sources, at most eval.gallery_images each (the toy detector's methods may agree)
     assert 0 < len(list((evaluated / "artifacts" / "gallery").glob("*.png"))) <= 2
     assert len(list((evaluated / "artifacts" / "gallery_detected").glob("*.png"))) <= 2

@@ -31,7 +31,7 @@ def test_infer_on_generated_images_writes_predictions_and_overlays(exported, gen
 
 
 def test_infer_on_a_dataset_matches_the_evaluate_rows(upstream, exported, evaluated, tmp_path):
-    for method in ("deepword", "logic", "prior"):
+    for method in ("deepword", "logic", "prior", "deepword_then_logic"):
         out = tmp_path / method
         argv = ["--dataset", str(upstream["data"]), "--out", str(out), "--method", method, "--overlays", "2",
                 "--export", str(exported[0]), "--evaluate", str(evaluated)]
