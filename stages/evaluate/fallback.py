@@ -13,6 +13,10 @@ from dataclasses import dataclass, replace
 
 from stages.word_format import Record
 
+# name -> (primary method, fallback method): the report's rows (stages/evaluate/methods.py) and `deepword infer
+# --method` (stages/inference/infer.py) both build these from their own registries
+FALLBACKS = {"deepword_then_logic": ("deepword", "logic")}
+
 
 @dataclass
 class ClaimFallback:
@@ -21,7 +25,7 @@ class ClaimFallback:
 
     primary: object     # predict(record) -> Record
     fallback: object
-    name: str = "deepword_then_logic"
+    name: str
 
     def predict(self, rec: Record) -> Record:
         first = self.primary.predict(rec)

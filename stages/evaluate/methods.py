@@ -26,7 +26,7 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
-from stages.evaluate.fallback import ClaimFallback
+from stages.evaluate.fallback import FALLBACKS, ClaimFallback
 from stages.word_format import Dataset, Record, boxes_only, read_records
 
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
@@ -96,10 +96,15 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     return factory
 
 
-def deepword_then_logic(ctx: EvalContext):
-    """DeepWORD's claims, and the IoU rule's for the wheels DeepWORD leaves unclaimed (stages/evaluate/fallback.py)."""
-    deepword = deepword_onnx("deepword")(ctx)
-    return None if deepword is None else ClaimFallback(deepword, ctx.logic)
+def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
+    """A ``FALLBACKS`` row (stages/evaluate/fallback.py): its primary method's claims, and its fallback's for the
+    wheels the primary leaves unclaimed; skipped when either method is."""
+
+    def factory(ctx: EvalContext):
+        primary, fallback = (METHODS[m](ctx) for m in FALLBACKS[name])
+        return None if primary is None or fallback is None else ClaimFallback(primary, fallback, name)
+
+    return factory
 
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
@@ -109,8 +114,8 @@ METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "prior": lambda ctx: fit_prior(ctx.train, ctx.priors, ctx.grids.prior_owner, ctx.grids.prior_couple),
     "deepword": deepword_onnx("deepword"),
     "deepword_int8": deepword_onnx("deepword_int8"),
-    "deepword_then_logic": deepword_then_logic,
 }
+METHODS |= {name: claim_fallback(name) for name in FALLBACKS}
 
 
 def gt_boxes(ctx: EvalContext) -> dict[str, Record]:

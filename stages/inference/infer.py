@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stages.evaluate.fallback import FALLBACKS, ClaimFallback
 from stages.inference.runtime import METHOD_VARIANTS
 from stages.word_format import CAMERAS, DatasetError, Record, boxes_only, write_records
 
 BASELINES = ("logic", "logic_plus", "prior")
-FALLBACKS = {"deepword_then_logic": ("deepword", "logic")}   # stages/evaluate/fallback.py: (primary, fallback)
 METHODS = (*METHOD_VARIANTS, *BASELINES, *FALLBACKS)
 PREDICTIONS_FILE = "labels.jsonl"
 DETECTIONS_FILE = "detections.jsonl"
@@ -94,8 +94,6 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
     if name in FALLBACKS:
-        from stages.evaluate.fallback import ClaimFallback
-
         primary, fallback = FALLBACKS[name]
         return ClaimFallback(build_method(primary, dirs, root, threads, load_rgb),
                              build_method(fallback, dirs, root, threads, load_rgb), name)

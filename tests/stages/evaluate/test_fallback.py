@@ -32,7 +32,7 @@ def test_the_fallback_claims_only_the_wheels_the_first_method_left_unclaimed():
     first = Fixed([(0, 2, "rear"), (0, 3, "front")], wheel_pairs=[(2, 3)])
     # the rule disagrees on wheel 3 (vehicle 1), agrees on 2 and claims wheel 4, which the first method left alone
     rule = Fixed([(0, 2, None), (1, 3, None), (1, 4, None)])
-    pred = ClaimFallback(first, rule).predict(RECORD)
+    pred = ClaimFallback(first, rule, "first_then_rule").predict(RECORD)
     assert pred.relations == [(0, 2, "rear"), (0, 3, "front"), (1, 4, None)]
     assert pred.wheel_pairs == [(2, 3)]  # couples are the first method's
     owners = [w for _, w, _ in pred.relations]
@@ -42,8 +42,9 @@ def test_the_fallback_claims_only_the_wheels_the_first_method_left_unclaimed():
 
 def test_a_fallback_with_nothing_to_add_changes_nothing():
     first = Fixed([(0, 2, "rear"), (1, 4, "rear")])
-    assert ClaimFallback(first, Fixed([])).predict(RECORD).relations == [(0, 2, "rear"), (1, 4, "rear")]
-    assert ClaimFallback(Fixed([]), first).predict(RECORD).relations == [(0, 2, "rear"), (1, 4, "rear")]
+    mine = [(0, 2, "rear"), (1, 4, "rear")]
+    assert ClaimFallback(first, Fixed([]), "first_then_none").predict(RECORD).relations == mine
+    assert ClaimFallback(Fixed([]), first, "none_then_first").predict(RECORD).relations == mine
 
 
 def test_the_row_is_registered_and_in_the_default_report():
