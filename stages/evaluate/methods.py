@@ -26,7 +26,7 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
-from stages.evaluate.fallback import FALLBACKS, ClaimFallback
+from stages.evaluate.fallback import FALLBACKS
 from stages.word_format import Dataset, Record, boxes_only, read_records
 
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
@@ -78,7 +78,7 @@ class EvalContext:
 
     @cached_property
     def logic(self):
-        """The paper's IoU rule fitted on train: its own row, and the fallback of ``deepword_then_logic``."""
+        """The paper's IoU rule fitted on train (the ``logic`` row)."""
         return fit_logic(self.train, self.couple_rule, self.grids.logic_iou)
 
 
@@ -98,11 +98,15 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
 
 def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
     """A ``FALLBACKS`` row (stages/evaluate/fallback.py): its primary method's claims, and its fallback's for the
-    wheels the primary leaves unclaimed; skipped when either method is."""
+    wheels the primary leaves unclaimed, as the bundle ships them (the fallback rule fitted on train by the export
+    stage, the same fit as this stage's own row of that rule), so that the row is what ``deepword infer`` does."""
 
     def factory(ctx: EvalContext):
-        primary, fallback = (METHODS[m](ctx) for m in FALLBACKS[name])
-        return None if primary is None or fallback is None else ClaimFallback(primary, fallback, name)
+        if "export" not in ctx.inputs:
+            return None
+        from stages.inference.runtime import bundle_method
+
+        return bundle_method(name, ctx.inputs["export"], ctx.dataset.root)
 
     return factory
 

@@ -41,40 +41,51 @@ def table3(methods: dict[str, dict[str, dict[str, float]]], metric: str, with_pa
     return lines
 
 
-HEADLINE_METHOD = "deepword"
+HEADLINE_METHOD = "deepword"   # on ground-truth boxes, and on detected ones beside the bundle's end-to-end method
 HEADLINE_METRICS = ("pair_f1", "pair_precision", "pair_recall", "image_acc")
 
 
-def headline_metrics(results: dict) -> dict[str, float]:
+def headline_metrics(results: dict, end_to_end: str = HEADLINE_METHOD) -> dict[str, float]:
     """The few numbers a run is judged by, first in the stage's metrics (the pipeline summary shows a stage's
-    first ones): end-to-end DeepWORD pair_f1 on hard and mixed, image_acc on hard, and the ground-truth-box
-    pair_f1 on mixed to compare with."""
-    wanted = [("detected", "hard", "pair_f1"), ("detected", "mixed", "pair_f1"), ("gt", "mixed", "pair_f1"),
-              ("detected", "hard", "image_acc")]
-    return {metric_name(b, HEADLINE_METHOD, s, m): float(results[b][HEADLINE_METHOD][s][m])
-            for b, s, m in wanted if s in results.get(b, {}).get(HEADLINE_METHOD, {})}
+    first ones): the end-to-end method's pair_f1 on detected boxes of hard and mixed images, DeepWORD's pair_f1 on
+    ground-truth boxes of mixed ones to compare with, the end-to-end image_acc on hard, and DeepWORD alone end to
+    end."""
+    wanted = [("detected", end_to_end, "hard", "pair_f1"), ("detected", end_to_end, "mixed", "pair_f1"),
+              ("gt", HEADLINE_METHOD, "mixed", "pair_f1"), ("detected", end_to_end, "hard", "image_acc"),
+              ("detected", HEADLINE_METHOD, "hard", "pair_f1"), ("detected", HEADLINE_METHOD, "mixed", "pair_f1")]
+    out = {}
+    for boxes, method, subset, metric in wanted:
+        if subset in results.get(boxes, {}).get(method, {}):
+            out[metric_name(boxes, method, subset, metric)] = float(results[boxes][method][subset][metric])
+    return out
 
 
-def headline_markdown(results: dict, detector: dict | None) -> list[str]:
-    """End to end first: DeepWORD on detected boxes, the ceiling those boxes leave it (``relation_oracle``) and
-    DeepWORD on ground-truth boxes, per subset, and the detector's AP and operating point (from the export
-    bundle's ``detector`` entry) that the detected rows depend on."""
+def headline_markdown(results: dict, detector: dict | None, end_to_end: str = HEADLINE_METHOD) -> list[str]:
+    """End to end first: the bundle's end-to-end method on detected boxes (and DeepWORD alone, when that is another
+    method), the ceiling those boxes leave it (``relation_oracle``) and DeepWORD on ground-truth boxes, per subset,
+    and the detector's AP and operating point (from the export bundle's ``detector`` entry) that the detected rows
+    depend on."""
     detected, gt = results.get("detected", {}), results.get("gt", {})
-    rows = [(BOX_TITLES["detected"], detected.get(HEADLINE_METHOD)), (ORACLE_TITLE, detected.get(RELATION_ORACLE)),
-            (BOX_TITLES["gt"], gt.get(HEADLINE_METHOD))]
-    if HEADLINE_METHOD not in detected:  # the ceiling only means something beside the row it bounds
-        rows.pop(1)
-    rows = [(title, subsets) for title, subsets in rows if subsets is not None]
+    rows = [(BOX_TITLES["detected"], end_to_end, detected.get(end_to_end))]
+    if end_to_end != HEADLINE_METHOD:
+        rows.append((BOX_TITLES["detected"], HEADLINE_METHOD, detected.get(HEADLINE_METHOD)))
+    if any(subsets is not None for *_, subsets in rows):  # the ceiling only means something beside a row it bounds
+        rows.append((ORACLE_TITLE, "-", detected.get(RELATION_ORACLE)))
+    rows.append((BOX_TITLES["gt"], HEADLINE_METHOD, gt.get(HEADLINE_METHOD)))
+    rows = [row for row in rows if row[2] is not None]
     if not rows:
         return []
-    out = ["## End to end: DeepWORD on detected boxes beside ground-truth boxes", "",
-           "| boxes | " + " | ".join(f"{m} {s}" for m in HEADLINE_METRICS for s in SUBSETS) + " |",
-           "|---|" + "---:|" * (len(HEADLINE_METRICS) * len(SUBSETS))]
-    for title, subsets in rows:
-        out.append(f"| {title} | " + " | ".join(
+    out = [f"## End to end: `{end_to_end}` on detected boxes beside ground-truth boxes", "",
+           "| boxes | method | " + " | ".join(f"{m} {s}" for m in HEADLINE_METRICS for s in SUBSETS) + " |",
+           "|---|---|" + "---:|" * (len(HEADLINE_METRICS) * len(SUBSETS))]
+    for title, method, subsets in rows:
+        out.append(f"| {title} | {method} | " + " | ".join(
             f"{subsets[s][m]:.2f}" if s in subsets else "-" for m in HEADLINE_METRICS for s in SUBSETS) + " |")
     out.append("")
-    if any(title == ORACLE_TITLE for title, _ in rows):
+    if end_to_end != HEADLINE_METHOD:
+        out += [f"`{end_to_end}` is the bundle's end-to-end method (`export.end_to_end`, what `deepword infer` runs "
+                "on images): stages/evaluate/fallback.py.", ""]
+    if any(title == ORACLE_TITLE for title, *_ in rows):
         out += [ORACLE_NOTE, ""]
     if detector:
         ap = detector.get("ap") or {}
@@ -86,7 +97,7 @@ def headline_markdown(results: dict, detector: dict | None) -> list[str]:
         op = detector.get("operating_point")
         if op:
             sides = detector.get("min_side") or {}
-            out.append("Operating point (chosen on val by end-to-end DeepWORD pair_f1): "
+            out.append(f"Operating point (chosen on val by the end-to-end pair_f1 of `{end_to_end}`): "
                        + ", ".join(f"{c} score >= {op[c]:.2f}" + (f" and >= {sides[c]:g} px" if sides.get(c) else "")
                                    for c in classes if c in op) + ".")
         out.append("")

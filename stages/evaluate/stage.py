@@ -15,7 +15,14 @@ from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
 from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext, detections_for_ap
 from stages.evaluate.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
-from stages.evaluate.report import PAPER_TABLE3, flatten, headline_markdown, headline_metrics, render_markdown
+from stages.evaluate.report import (
+    HEADLINE_METHOD,
+    PAPER_TABLE3,
+    flatten,
+    headline_markdown,
+    headline_metrics,
+    render_markdown,
+)
 from stages.metrics import evaluated_wheel_ids, score_records
 from stages.priors.mixture import load_priors
 from stages.word_format import SUBSETS, open_dataset, write_records
@@ -24,13 +31,14 @@ BASELINES_FILE = "baselines.json"
 SHIFT_DIR = "shift"   # the held-out domain's predictions and report
 
 
-def detector_entry(inputs: dict[str, Path]) -> dict | None:
-    """The export bundle's detector entry (AP, operating point), or None without an export or a detector."""
+def bundle_entries(inputs: dict[str, Path]) -> tuple[dict | None, str]:
+    """The export bundle's detector entry (AP, operating point; None without an export or a detector) and its
+    end-to-end method (``deepword`` without an export)."""
     if "export" not in inputs:
-        return None
-    from stages.inference.runtime import read_bundle
+        return None, HEADLINE_METHOD
+    from stages.inference.runtime import end_to_end_method, read_bundle
 
-    return read_bundle(inputs["export"]).get("detector")
+    return read_bundle(inputs["export"]).get("detector"), end_to_end_method(inputs["export"])
 
 
 def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
@@ -113,7 +121,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if "shift_data" in inputs:
         metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    lead = headline_markdown(results, detector_entry(inputs))
+    detector, end_to_end = bundle_entries(inputs)
+    lead = headline_markdown(results, detector, end_to_end)
     (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
                                                        lead, errors))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
@@ -133,7 +142,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         if boxes in predictions:
             write_gallery(artifacts / folder, ds.root, test, predictions[boxes], int(ecfg.gallery_images), min_px,
                           iou)
-    return {**headline_metrics(results), **metrics}
+    return {**headline_metrics(results, end_to_end), **metrics}
 
 
 def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:

@@ -1,5 +1,6 @@
 """The detector's operating point: one score threshold and one minimum box side per class, chosen on the val
-split by the end-to-end pair_f1 of the shipped relation model, and stored in the bundle's ``export.json``.
+split by the end-to-end pair_f1 of the bundle's end-to-end method (the shipped relation model, with the IoU rule for
+the wheels it leaves unclaimed by default: ``export.end_to_end``), and stored in the bundle's ``export.json``.
 
 Every detection down to the detector's ``score_threshold`` (0.1) is worth keeping for AP, which integrates
 over all scores; a relation network fed all of them sees dozens of weak boxes per image, and each weak

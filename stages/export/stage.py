@@ -10,7 +10,10 @@
 4. latency (``stages.export.latency``, ``relation_latency``): the dynamic relation model on test images at
    their real object counts (batch 1, and batch 10 padded to the largest of the 10), PyTorch eager on
    the same inputs in the same process, the static model padded to max_objects, INT8, detector;
-5. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
+5. the end-to-end method (``export.end_to_end``): the paper's IoU rule fitted on train and stored in the bundle, so
+   that ``deepword_then_logic`` runs from the bundle alone; the detector's operating point is chosen on val by the
+   end-to-end method's pair_f1;
+6. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
 
 The output directory is the self-contained bundle ``stages.inference.runtime`` documents; reports go to
 ``artifacts/`` (``latency.md``, ``parity.json``).
@@ -71,12 +74,13 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
 
 def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
                  operating_point: dict | None = None, detector_ap: dict | None = None,
-                 min_sides: dict | None = None) -> None:
+                 min_sides: dict | None = None, end_to_end: dict | None = None) -> None:
     """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector. The
     detector's ``operating_point`` ({class name: score threshold}) and ``min_side`` ({class name: shorter box
     side in image pixels}), chosen on val, are what inference keeps; ``score_threshold`` is the lower bound of
     what its decoding returns at all. ``ap``: the detector stage's
-    val/test AP, so that reports on this bundle can show it beside the end-to-end rows."""
+    val/test AP, so that reports on this bundle can show it beside the end-to-end rows. ``end_to_end``: the method
+    for detected boxes and the rules fitted on train it may fall back on (``end_to_end_entry``)."""
     detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
                                                                       "score_threshold", "class_names")}
     if detector is not None:
@@ -86,7 +90,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
     files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
                            "model": meta["model"]},
-              "detector": detector, "files": files, **extra}
+              "detector": detector, "end_to_end": end_to_end, "files": files, **extra}
     (out_dir / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
 
 
@@ -210,6 +214,27 @@ def export_detector_checked(det_net, det_cfg: dict, ds, test: list, out_dir: Pat
     return report, metrics
 
 
+def end_to_end_entry(ds, e2e_cfg, min_box_px: float, seed: int) -> tuple[dict, object | None]:
+    """``export.json``'s ``end_to_end`` entry ({"method": name, "rules": {rule: fitted parameters}}) and the method's
+    fallback rule (None for ``deepword``). The paper's IoU rule is fitted on the train split exactly as the evaluate
+    stage fits its ``logic`` row (the same seeded sample and grids: ``export.end_to_end.fit`` follows ``eval``), so
+    the bundle's ``deepword_then_logic`` is the evaluate stage's row and ``deepword infer`` needs no baselines."""
+    from stages.evaluate.baselines import baseline_params, fit_couple_rule, fit_logic, prepare_train
+    from stages.evaluate.fallback import FALLBACKS
+
+    method = str(e2e_cfg.method)
+    known = ["deepword", *FALLBACKS]
+    if method not in known:
+        raise ValueError(f"export.end_to_end.method: {method!r} is not one of {known}")
+    train = prepare_train(ds.subset("train"), min_box_px, int(e2e_cfg.fit.images), seed)
+    if not train:
+        raise ValueError("export: the train split is empty; the end-to-end method's IoU rule is fitted on it")
+    fit = e2e_cfg.fit
+    rules = {"logic": fit_logic(train, fit_couple_rule(train, list(fit.couple_tolerance)), list(fit.logic_iou))}
+    fallback = rules[FALLBACKS[method][1]] if method in FALLBACKS else None
+    return {"method": method, "rules": {name: baseline_params(rule) for name, rule in rules.items()}}, fallback
+
+
 def detector_ap(detector_dir: Path) -> dict[str, float]:
     """The detector stage's ``detector.{val,test}.{ap50,ap}.<class>`` metrics (its metrics.json)."""
     path = Path(detector_dir) / "metrics.json"
@@ -218,12 +243,14 @@ def detector_ap(detector_dir: Path) -> dict[str, float]:
 
 
 def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float, net=None,
-                           tolerance: float = 1e-4) -> tuple[dict, dict, dict]:
+                           tolerance: float = 1e-4, fallback=None) -> tuple[dict, dict, dict]:
     """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
-    end-to-end pair_f1 of the exported DeepWORD model (``stages.export.operating_point``); returns
-    ({class: threshold}, {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
+    end-to-end pair_f1 of the exported DeepWORD model, with ``fallback``'s claims for the wheels it leaves unclaimed
+    when given (the bundle's end-to-end method; ``stages.export.operating_point``); returns ({class: threshold},
+    {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
     relation model was exported from, each box is embedded once (``stages.export.embedded_boxes``), after a
     check that this gives the bundle's scores on every val image's whole graph within ``tolerance``."""
+    from stages.evaluate.fallback import batch_with_fallback
     from stages.export.operating_point import (
         OperatingPoint,
         SubsetRelation,
@@ -255,12 +282,16 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
                                "search would not score the shipped model")
         split_metrics["export.detector.operating_point_parity_max_abs_diff"] = diff
     match_iou = float(op_cfg.match_iou)
-    chosen, seen = search_operating_point(val, detections, relation, len(classes), list(op_cfg.grid), side_grid,
+    method = relation if fallback is None else batch_with_fallback(relation, fallback)
+    chosen, seen = search_operating_point(val, detections, method, len(classes), list(op_cfg.grid), side_grid,
                                           min_box_px, match_iou)
     floor = OperatingPoint(tuple([float(det_cfg["score_threshold"])] * len(classes)), tuple([0.0] * len(classes)))
     f1_floor = seen.get(floor)
     if f1_floor is None:
-        f1_floor = end_to_end_pair_f1(val, detections, floor, relation, min_box_px, match_iou)
+        f1_floor = end_to_end_pair_f1(val, detections, floor, method, min_box_px, match_iou)
+    # DeepWORD alone at the same point: what the fallback adds on val
+    split_metrics["export.detector.val_pair_f1_deepword"] = float(
+        end_to_end_pair_f1(val, detections, chosen, relation, min_box_px, match_iou))
     thresholds = dict(zip(classes, chosen.thresholds, strict=True))
     min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},
@@ -290,13 +321,14 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     net, meta = load_network(inputs["relation"])
     det_net, det_cfg = load_detector(inputs["detector"]) if "detector" in inputs else (None, None)
     in_cfg = InputConfig(**meta["inputs"])
+    end_to_end, fallback = end_to_end_entry(ds, ex.end_to_end, float(ex.min_box_px), int(cfg.seed))
     shutil.copy(Path(inputs["priors"]) / PRIORS_FILE, out_dir / PRIORS_FILE)
     priors = load_priors(out_dir / PRIORS_FILE)
 
     export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
     export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
     quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
-    write_bundle(out_dir, meta, det_cfg, {})
+    write_bundle(out_dir, meta, det_cfg, {}, end_to_end=end_to_end)
 
     test = _limit(ds.subset("test"), ex.parity.images)
     if not test:
@@ -318,10 +350,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if det_net is not None:
         reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
         operating_point, min_sides, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
-                                                                        float(ex.min_box_px), net, tol)
+                                                                        float(ex.min_box_px), net, tol, fallback)
         det_metrics.update(op_metrics)
         det_ap = detector_ap(inputs["detector"])
-        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides)
+        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -356,5 +388,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
         registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads},
-                 operating_point, det_ap, min_sides)
+                 operating_point, det_ap, min_sides, end_to_end)
     return metrics

@@ -5,9 +5,11 @@ exported models in onnxruntime (torch is never imported on this path).
     deepword infer --dataset ROOT --out DIR      on the dataset's own boxes (the ground-truth-box setting)
     deepword infer --dataset ROOT --out DIR --detect    on detected boxes (end to end)
 
-Options: ``--method deepword|deepword_int8|logic|logic_plus|prior|deepword_then_logic`` (the baselines use the
-thresholds the pipeline's evaluate stage fitted on train: its ``baselines.json``; ``deepword_then_logic`` is DeepWORD
-with the IoU rule's claim for each wheel DeepWORD leaves unclaimed); ``--calibration FILE`` (a WoodScape-style
+Options: ``--method deepword|deepword_int8|logic|logic_plus|prior|deepword_then_logic`` (default: on detected boxes
+the bundle's end-to-end method, ``export.end_to_end``, by default ``deepword_then_logic``: DeepWORD with the IoU
+rule's claim for each wheel DeepWORD leaves unclaimed, the rule fitted on train and stored in the bundle; on a
+dataset's own boxes ``deepword``. The baselines use the thresholds the pipeline's evaluate stage fitted on train:
+its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
 JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
 ``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
 a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
@@ -91,16 +93,30 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     return dirs
 
 
+def default_method(dirs: dict[str, Path], detect: bool) -> str:
+    """``--method``'s default: the bundle's end-to-end method on detected boxes, DeepWORD on given boxes (where the
+    rule it falls back on adds nothing: docs/detector.md)."""
+    from stages.inference.runtime import end_to_end_method
+
+    return end_to_end_method(dirs["export"]) if detect else "deepword"
+
+
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
-    if name in FALLBACKS:
-        primary, fallback = FALLBACKS[name]
-        return ClaimFallback(build_method(primary, dirs, root, threads, load_rgb),
-                             build_method(fallback, dirs, root, threads, load_rgb), name)
-    if name in METHOD_VARIANTS:
-        from stages.inference.runtime import deepword_method
+    from stages.inference.runtime import NoRuleError, bundle_method
 
-        return deepword_method(name, dirs["export"], root, threads, load_rgb)
+    if name in METHOD_VARIANTS or name in FALLBACKS:
+        try:
+            return bundle_method(name, dirs["export"], root, threads, load_rgb)
+        except NoRuleError as exc:  # a bundle from before it held its fallback rule: the evaluate stage's fit of it
+            from stages.evaluate.stage import BASELINES_FILE
+
+            if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
+                raise InferError(f"--method {name}: {exc}; pass --evaluate DIR (or a --run whose evaluate stage "
+                                 "finished) for the evaluate stage's fit of it, or export the run again") from None
+            primary, fallback = FALLBACKS[name]
+            return ClaimFallback(build_method(primary, dirs, root, threads, load_rgb),
+                                 build_method(fallback, dirs, root, threads, load_rgb), name)
     from stages.evaluate.baselines import baseline_from_params
     from stages.evaluate.stage import BASELINES_FILE
     from stages.inference.runtime import PRIORS_FILE
@@ -205,7 +221,11 @@ def infer(args) -> list[Record]:
         # --detections); the relations see only those at the operating point
         write_records(args.out / DETECTIONS_FILE, every)
         records = [detector.keep_operating_point(r) for r in every]
-    method = build_method(args.method, dirs, root, args.threads, rgb_of)
+    name = args.method or default_method(dirs, detect)
+    if args.method is None:
+        why = "the bundle's end-to-end method" if detect else "on the dataset's own boxes"
+        print(f"method: {name} ({why})", file=sys.stderr)
+    method = build_method(name, dirs, root, args.threads, rgb_of)
     preds = [method.predict(r) for r in records]
     preds, views = add_footprints(args, dirs, preds)
     write_records(args.out / PREDICTIONS_FILE, preds)
@@ -221,7 +241,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", type=Path, help="a WORD-style dataset root (labels.jsonl) or a data stage output")
     p.add_argument("--detect", action="store_true", help="with --dataset: use detected instead of annotated boxes")
     p.add_argument("--out", type=Path, required=True, help="output folder (labels.jsonl, overlays/)")
-    p.add_argument("--method", choices=METHODS, default="deepword")
+    p.add_argument("--method", choices=METHODS, default=None,
+                   help="relation method (default: the bundle's end-to-end method on detected boxes, deepword on "
+                        "a dataset's own boxes)")
     p.add_argument("--run", help="MLflow run id of the pipeline run whose artifacts to use (default: newest)")
     p.add_argument("--export", type=Path, help="an export stage output directory (instead of --run)")
     p.add_argument("--evaluate", type=Path, help="an evaluate stage output directory (baselines, with --export)")

@@ -4,7 +4,8 @@ rows and ``deepword infer`` run.
 An export stage directory (the *bundle*) holds everything inference needs, so nothing upstream must be
 present at inference time::
 
-    export.json            input and decoding settings, detector preprocessing, file names, metrics
+    export.json            input and decoding settings, detector preprocessing and operating point, the end-to-end
+                           method and the rule it falls back on (fitted on train), file names, metrics
     priors.json            the Gaussian-mixture priors (adjacency of the graph)
     relation_static.onnx   objects padded to max_objects (static N; batch dynamic): for embedded runtimes
     relation_dynamic.onnx  batch and object count dynamic
@@ -172,6 +173,45 @@ def deepword_method(name: str, bundle_dir: str | os.PathLike, root: str | os.Pat
 
     relation = OnnxRelation(bundle_dir, METHOD_VARIANTS[name], threads)
     return DeepwordMethod(name, relation, load_rgb or (lambda rec: load_image(root, rec)))
+
+
+# --- the bundle's end-to-end method -------------------------------------------------------------------
+
+class NoRuleError(LookupError):
+    """The bundle holds no fitted rule of that name (it was exported before ``export.end_to_end`` existed)."""
+
+
+def end_to_end_method(bundle_dir: str | os.PathLike) -> str:
+    """The method the bundle ships for detected boxes (``export.end_to_end.method``): the one its detector's
+    operating point was chosen by; ``deepword`` for a bundle exported before the setting existed."""
+    return (read_bundle(bundle_dir).get("end_to_end") or {}).get("method", "deepword")
+
+
+def bundle_rule(bundle_dir: str | os.PathLike, name: str):
+    """A hand-written rule the export stage fitted on train and stored in the bundle (``logic``: the paper's IoU
+    rule), as an object with ``predict(record) -> Record``."""
+    from stages.evaluate.baselines import baseline_from_params
+
+    rules = (read_bundle(bundle_dir).get("end_to_end") or {}).get("rules") or {}
+    if name not in rules:
+        raise NoRuleError(f"{Path(bundle_dir) / BUNDLE_FILE}: no fitted {name!r} rule (exported before bundles held "
+                          "one)")
+    return baseline_from_params(name, rules[name])
+
+
+def bundle_method(name: str, bundle_dir: str | os.PathLike, root: str | os.PathLike, threads: int = 1,
+                  load_rgb: Callable[[Record], np.ndarray] | None = None):
+    """A method the bundle alone can run: ``deepword``, ``deepword_int8``, or a ``FALLBACKS`` method
+    (``deepword_then_logic``) whose fallback rule the bundle holds (``NoRuleError`` when it does not)."""
+    from stages.evaluate.fallback import FALLBACKS, ClaimFallback
+
+    if name in METHOD_VARIANTS:
+        return deepword_method(name, bundle_dir, root, threads, load_rgb)
+    if name not in FALLBACKS:
+        raise ValueError(f"{name!r} is not a method of the bundle; have {sorted([*METHOD_VARIANTS, *FALLBACKS])}")
+    primary, fallback = FALLBACKS[name]
+    return ClaimFallback(bundle_method(primary, bundle_dir, root, threads, load_rgb), bundle_rule(bundle_dir, fallback),
+                         name)
 
 
 # --- detector ---------------------------------------------------------------------------------------

@@ -55,3 +55,24 @@ def test_the_row_is_registered_and_in_the_default_report():
     assert "deepword_then_logic" in METHODS
     conf = OmegaConf.load(Path(__file__).parents[3] / "conf" / "eval" / "default.yaml")
     assert "deepword_then_logic" in conf.methods
+
+
+def test_a_batch_predictor_with_a_fallback_adds_the_same_claims_as_the_row():
+    """What the operating-point search scores (a batch predictor with the fallback) is what the row predicts."""
+    from stages.evaluate.fallback import batch_with_fallback
+
+    first = Fixed([(0, 2, "rear")])
+    rule = Fixed([(1, 2, None), (1, 4, None)])
+    calls = []
+
+    def batch(records):
+        calls.append(len(records))
+        return [first.predict(r) for r in records]
+
+    other = replace(RECORD, image="g.png")
+    preds = batch_with_fallback(batch, rule)([RECORD, other])
+    assert calls == [2]  # the primary still sees the whole batch at once
+    row = ClaimFallback(first, rule, "first_then_rule")
+    assert [p.relations for p in preds] == [row.predict(RECORD).relations, row.predict(other).relations]
+    assert preds[0].relations == [(0, 2, "rear"), (1, 4, None)]
+

@@ -25,6 +25,12 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     md = (evaluated / "report.md").read_text()
     assert md.index("## End to end") < md.index("## detected boxes") < md.index("## ground-truth boxes")
     assert "Operating point" in md
+    # the bundle's end-to-end method leads, DeepWORD alone beside it
+    lead = md[md.index("## End to end"):md.index("## detected boxes")]
+    assert lead.startswith("## End to end: `deepword_then_logic` on detected boxes")
+    assert lead.index("| detected boxes (end-to-end) | deepword_then_logic |") < \
+        lead.index("| detected boxes (end-to-end) | deepword |") < lead.index("| ground-truth boxes | deepword |")
+    assert "pair_f1 of `deepword_then_logic`" in lead
     # each box source's tables end with the pair errors by cause, which add up to the pairs the scores count
     assert md.index("## detected boxes") < md.index("## Where the pair errors are: detected boxes") < \
         md.index("## ground-truth boxes")

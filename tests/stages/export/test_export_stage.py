@@ -64,3 +64,40 @@ def test_a_bundle_detector_keeps_what_its_operating_point_keeps(exported, tmp_pa
         (bundle_dir / BUNDLE_FILE).write_text(json.dumps(bundle))
         kept = OnnxDetector(bundle_dir).keep_operating_point(every)
         assert kept.scores.tolist() == scores and kept.box_ids.tolist() == list(range(len(scores)))
+
+
+def test_the_bundle_ships_its_end_to_end_method_and_the_rule_it_falls_back_on(upstream, exported, evaluated):
+    """The IoU rule in the bundle is the evaluate stage's fit of its own `logic` row, and the operating point's val
+    pair_f1 is the end-to-end method's: the bundle's detector at its operating point, then the bundle's method."""
+    from stages.inference.runtime import OnnxDetector, bundle_method, end_to_end_method
+    from stages.metrics import score_records
+    from stages.word_format import load_image, open_dataset
+
+    out, metrics = exported
+    bundle = json.loads((out / BUNDLE_FILE).read_text())
+    assert end_to_end_method(out) == bundle["end_to_end"]["method"] == "deepword_then_logic"
+    fitted = json.loads((evaluated / "baselines.json").read_text())
+    assert bundle["end_to_end"]["rules"] == {"logic": fitted["logic"]}
+    ds = open_dataset(upstream["data"])
+    val, detector = ds.subset("val"), OnnxDetector(out)
+    detected = [detector.detect(load_image(ds.root, r), r) for r in val]
+    for name, key in (("deepword_then_logic", "val_pair_f1"), ("deepword", "val_pair_f1_deepword")):
+        method = bundle_method(name, out, ds.root)
+        preds = {d.image: method.predict(d) for d in detected}
+        f1 = score_records(val, preds, 4.0, 0.5).percentages()["pair_f1"]
+        assert f1 == pytest.approx(metrics[f"export.detector.{key}"], abs=1e-9), name
+
+
+def test_an_unknown_end_to_end_method_fails_before_anything_is_exported(upstream):
+    from omegaconf import OmegaConf
+
+    from stages.export.stage import end_to_end_entry
+    from stages.word_format import open_dataset
+
+    cfg = OmegaConf.create({"method": "deepword_then_iou", "fit": {"images": 5, "couple_tolerance": [0.5],
+                                                                   "logic_iou": [0.1]}})
+    with pytest.raises(ValueError, match=r"export\.end_to_end\.method: 'deepword_then_iou'"):
+        end_to_end_entry(open_dataset(upstream["data"]), cfg, 4.0, 0)
+    entry, fallback = end_to_end_entry(open_dataset(upstream["data"]), OmegaConf.merge(cfg, {"method": "deepword"}),
+                                       4.0, 0)
+    assert entry["method"] == "deepword" and fallback is None and set(entry["rules"]) == {"logic"}

@@ -68,6 +68,45 @@ def test_infer_with_detected_boxes_on_a_dataset(upstream, exported, tmp_path, ca
     assert "## Where AP@0.5 goes (whole dataset)" in capsys.readouterr().out
 
 
+def test_infer_runs_the_bundles_end_to_end_method_on_detected_boxes_and_deepword_on_given_ones(
+        upstream, exported, evaluated, tmp_path, capsys):
+    """Without --method: the bundle's end-to-end method (with its own fitted rule, no --evaluate) on detections,
+    exactly the evaluate stage's row; DeepWORD on a dataset's own boxes."""
+    for detect, method in ((True, "deepword_then_logic"), (False, "deepword")):
+        out = tmp_path / method
+        argv = ["--dataset", str(upstream["data"]), "--out", str(out), "--export", str(exported[0])]
+        assert infer(argv + (["--detect"] if detect else [])) == 0
+        assert f"method: {method}" in capsys.readouterr().err
+        got = {r.image: r for r in read_records(out / "labels.jsonl", root=upstream["data"], allow_empty=True)}
+        boxes = "detected" if detect else "gt"
+        want = read_records(evaluated / "predictions" / f"{boxes}_{method}.jsonl", root=upstream["data"],
+                            allow_empty=True)
+        assert want and all(got[w.image].relations == w.relations for w in want)
+
+
+def test_a_bundle_without_its_rule_falls_back_on_the_evaluate_stages_fit(upstream, exported, evaluated, tmp_path,
+                                                                         capsys):
+    import shutil
+
+    bundle_dir = tmp_path / "old_bundle"
+    shutil.copytree(exported[0], bundle_dir)
+    bundle = json.loads((bundle_dir / "export.json").read_text())
+    del bundle["end_to_end"]   # exported before bundles held their end-to-end method
+    (bundle_dir / "export.json").write_text(json.dumps(bundle))
+    base = ["--dataset", str(upstream["data"]), "--export", str(bundle_dir), "--method", "deepword_then_logic"]
+    assert infer([*base, "--out", str(tmp_path / "no_rule")]) == 2
+    assert "no fitted 'logic' rule" in capsys.readouterr().err
+    out = tmp_path / "with_baselines"
+    assert infer([*base, "--out", str(out), "--evaluate", str(evaluated)]) == 0
+    got = {r.image: r for r in read_records(out / "labels.jsonl", root=upstream["data"])}
+    want = read_records(evaluated / "predictions" / "gt_deepword_then_logic.jsonl", root=upstream["data"])
+    assert all(got[w.image].relations == w.relations for w in want)
+    # and such a bundle's end-to-end method is DeepWORD, the method its operating point was chosen by
+    assert infer(["--dataset", str(upstream["data"]), "--detect", "--export", str(bundle_dir), "--out",
+                  str(tmp_path / "old_default")]) == 0
+    assert "method: deepword (the bundle's end-to-end method)" in capsys.readouterr().err
+
+
 def test_infer_path_never_imports_torch(exported, generated_images, tmp_path):
     code = ("import sys; from stages.cli import main; "
             f"rc = main(['infer', {str(generated_images[0])!r}, '--out', {str(tmp_path)!r}, '--export', {str(exported[0])!r}]); "
