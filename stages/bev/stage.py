@@ -143,7 +143,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
               "match_m": float(bcfg.match_m), "frames": len(truth)}
     (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
     (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
-    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg)
+    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg, end_to_end_method(inputs["evaluate"]))
     for name in ("bev_report.md", "bev.json", PRIOR_FILE):
         shutil.copy(out_dir / name, artifacts / name)
     print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
@@ -190,16 +190,26 @@ def render_report(report: dict, bcfg) -> str:
     return "\n".join(lines) + "\n"
 
 
+def end_to_end_method(evaluate_dir: Path) -> str:
+    """The method evaluate headlined on detected boxes (the export bundle's end-to-end method; ``deepword`` for an
+    evaluate output from before it recorded one)."""
+    report = Path(evaluate_dir) / "report.json"
+    return json.loads(report.read_text()).get("end_to_end", "deepword") if report.is_file() else "deepword"
+
+
 def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dict, fused_by: dict,
-                  prior: FootprintPrior, bcfg) -> list[Path]:
+                  prior: FootprintPrior, bcfg, detected_method: str = "deepword") -> list[Path]:
     """One figure per sample frame (the frames with the most vehicles in range, evenly spread): a top view
-    per method on ground-truth boxes, and DeepWORD on detected boxes when there are."""
+    per method on ground-truth boxes, and ``detected_method`` (the end-to-end method) on detected boxes when there
+    are (DeepWORD when that method has no footprints here)."""
     by_frame = defaultdict(list)
     for rec in test:
         by_frame[rec.frame_id].append(rec)
     ranked = sorted(truth, key=lambda f: (-sum(t.range_m <= float(bcfg.max_range_m) for t in truth[f]), f))
     picks = ranked[:: max(1, len(ranked) // max(1, int(bcfg.figures)))][: int(bcfg.figures)]
-    panels_of = [k for k in fused_by if k[0] == "gt"] + [k for k in fused_by if k[0] == "detected" and k[1] == "deepword"]
+    if ("detected", detected_method) not in fused_by:
+        detected_method = "deepword"
+    panels_of = [k for k in fused_by if k[0] == "gt"] + [k for k in fused_by if k == ("detected", detected_method)]
     paths = []
     for f in sorted(picks):
         recs = by_frame[f]

@@ -115,13 +115,13 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     results, errors, predictions = score_dataset(ctx, methods, out_dir / "predictions")
     sizes = subset_sizes(ds, min_px)
+    detector, end_to_end = bundle_entries(inputs)
     report = {"results": results, "pair_errors": errors, "sizes": sizes, "notes": ctx.notes,
-              "paper_table3": PAPER_TABLE3, "min_box_px": min_px, "match_iou": iou}
+              "paper_table3": PAPER_TABLE3, "min_box_px": min_px, "match_iou": iou, "end_to_end": end_to_end}
     metrics = flatten(results)
     if "shift_data" in inputs:
         metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    detector, end_to_end = bundle_entries(inputs)
     lead = headline_markdown(results, detector, end_to_end)
     (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
                                                        lead, errors))

@@ -139,3 +139,16 @@ def test_rendered_frames_give_footprints_near_the_truth(tmp_path):
     assert len(errors) >= 10
     # measured 0.15 m against 0.96 m for box_bottom (seed 3)
     assert np.median(errors) < 0.3 and 2 * np.median(errors) < np.median(box_errors)
+
+
+def test_the_detected_top_view_shows_the_method_evaluate_headlined(tmp_path):
+    """The bev stage draws the end-to-end method evaluate recorded, DeepWORD for an evaluate output without one."""
+    import json
+
+    from stages.bev.stage import end_to_end_method
+
+    assert end_to_end_method(tmp_path) == "deepword"
+    (tmp_path / "report.json").write_text(json.dumps({"results": {}}))
+    assert end_to_end_method(tmp_path) == "deepword"
+    (tmp_path / "report.json").write_text(json.dumps({"results": {}, "end_to_end": "deepword_then_logic"}))
+    assert end_to_end_method(tmp_path) == "deepword_then_logic"

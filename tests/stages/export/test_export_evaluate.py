@@ -8,6 +8,7 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     _, metrics = exported
     report = json.loads((evaluated / "report.json").read_text())
     assert set(report["results"]) == {"gt", "detected"}
+    assert report["end_to_end"] == "deepword_then_logic"   # the bundle's, for the bev stage's top views
     methods = {"logic", "prior", "deepword", "deepword_int8", "deepword_then_logic"}
     assert set(report["results"]["gt"]) == methods
     assert set(report["results"]["detected"]) == methods | {"relation_oracle"}  # the ceiling of the detections
