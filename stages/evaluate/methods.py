@@ -76,11 +76,6 @@ class EvalContext:
     def couple_rule(self) -> CoupleRule:
         return fit_couple_rule(self.train, self.grids.couple_tolerance)
 
-    @cached_property
-    def logic(self):
-        """The paper's IoU rule fitted on train (the ``logic`` row)."""
-        return fit_logic(self.train, self.couple_rule, self.grids.logic_iou)
-
 
 def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
@@ -112,7 +107,7 @@ def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
 
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
-    "logic": lambda ctx: ctx.logic,
+    "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule, ctx.grids.logic_iou),
     "logic_plus": lambda ctx: fit_logic_plus(ctx.train, ctx.couple_rule, ctx.grids.logic_plus,
                                              ctx.grids.logic_plus_rounds),
     "prior": lambda ctx: fit_prior(ctx.train, ctx.priors, ctx.grids.prior_owner, ctx.grids.prior_couple),
