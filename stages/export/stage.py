@@ -16,7 +16,8 @@
 6. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
 
 The output directory is the self-contained bundle ``stages.inference.runtime`` documents; reports go to
-``artifacts/`` (``latency.md``, ``parity.json``).
+``artifacts/`` (``latency.md``, ``parity.json``, and with a detector ``operating_point.{md,png}``: what the
+operating-point search saw).
 """
 
 from __future__ import annotations
@@ -243,13 +244,14 @@ def detector_ap(detector_dir: Path) -> dict[str, float]:
 
 
 def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float, net=None,
-                           tolerance: float = 1e-4, fallback=None) -> tuple[dict, dict, dict]:
+                           tolerance: float = 1e-4, fallback=None, method_name: str = "") -> tuple[dict, dict, dict]:
     """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
     end-to-end pair_f1 of the exported DeepWORD model, with ``fallback``'s claims for the wheels it leaves unclaimed
     when given (the bundle's end-to-end method; ``stages.export.operating_point``); returns ({class: threshold},
     {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
     relation model was exported from, each box is embedded once (``stages.export.embedded_boxes``), after a
-    check that this gives the bundle's scores on every val image's whole graph within ``tolerance``."""
+    check that this gives the bundle's scores on every val image's whole graph within ``tolerance``. Writes what
+    the search saw to ``artifacts/operating_point.{md,png}`` (``stages.export.operating_point_report``)."""
     from stages.evaluate.fallback import batch_with_fallback
     from stages.export.operating_point import (
         OperatingPoint,
@@ -257,6 +259,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
         end_to_end_pair_f1,
         search_operating_point,
     )
+    from stages.export.operating_point_report import operating_point_markdown, plot_operating_point
     from stages.inference.runtime import OnnxDetector
 
     val = _limit(ds.subset("val"), op_cfg.images)
@@ -290,8 +293,14 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     if f1_floor is None:
         f1_floor = end_to_end_pair_f1(val, detections, floor, method, min_box_px, match_iou)
     # DeepWORD alone at the same point: what the fallback adds on val
-    split_metrics["export.detector.val_pair_f1_deepword"] = float(
-        end_to_end_pair_f1(val, detections, chosen, relation, min_box_px, match_iou))
+    alone = float(end_to_end_pair_f1(val, detections, chosen, relation, min_box_px, match_iou))
+    split_metrics["export.detector.val_pair_f1_deepword"] = alone
+    artifacts = out_dir / "artifacts"
+    artifacts.mkdir(exist_ok=True)
+    (artifacts / "operating_point.md").write_text(operating_point_markdown(
+        seen, chosen, classes, f1_floor, method_name, alone if fallback is not None else None))
+    if len(classes) == 2:
+        plot_operating_point(seen, chosen, classes, artifacts / "operating_point.png", method_name)
     thresholds = dict(zip(classes, chosen.thresholds, strict=True))
     min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},
@@ -350,7 +359,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if det_net is not None:
         reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
         operating_point, min_sides, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
-                                                                        float(ex.min_box_px), net, tol, fallback)
+                                                                        float(ex.min_box_px), net, tol, fallback,
+                                                                        end_to_end["method"])
         det_metrics.update(op_metrics)
         det_ap = detector_ap(inputs["detector"])
         write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end)

@@ -37,6 +37,11 @@ def test_stage_writes_checked_models_and_metrics(exported):
     assert 0 < metrics["export.detector.operating_point_relation_runs"] <= 18 * 6   # each distinct subset once
     assert metrics["export.detector.val_pair_f1"] >= metrics["export.detector.val_pair_f1_at_score_threshold"]
     assert (out / "artifacts" / "latency.md").read_text().count("|") > 20
+    # what the search saw: the chosen point and its val pair_f1 in the table, and the two cuts as a figure
+    table = (out / "artifacts" / "operating_point.md").read_text()
+    chosen = f"| **chosen** | {op['vehicle']:.2f} | {op['wheel']:.2f} |"
+    assert chosen in table and f"**{metrics['export.detector.val_pair_f1']:.2f}**" in table
+    assert (out / "artifacts" / "operating_point.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_bundle_detector_keeps_what_its_operating_point_keeps(exported, tmp_path):
