@@ -3,6 +3,7 @@
     deepword run [hydra overrides...]     the pipeline (same as ``python -m pipeline``)
     deepword score --gt ROOT --pred FILE  score WORD-format predictions (stages.evaluate.score)
     deepword infer ...                    relations with the exported ONNX models (stages.inference.infer)
+    deepword tune --dataset ROOT --out DIR  the detector's operating point chosen on your labelled images
     deepword show ROOT                    Fig. 5-style contact sheet of a dataset (stages.data.show)
 
 Each subcommand's module is imported only when it is chosen, so ``deepword infer`` never loads torch
@@ -18,6 +19,7 @@ COMMANDS = {
     "run": ("pipeline.cli", "run the pipeline with Hydra overrides"),
     "score": ("stages.evaluate.score", "score WORD-format predictions against a dataset"),
     "infer": ("stages.inference.infer", "relations of images or a dataset with the exported ONNX models"),
+    "tune": ("stages.inference.tune", "choose the bundle's detector operating point on your labelled images"),
     "show": ("stages.data.show", "contact sheet of a WORD-style dataset"),
 }
 

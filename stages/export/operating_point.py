@@ -132,11 +132,12 @@ class SubsetRelation:
 
     With ``network`` (the torch network the bundle's relation model was exported from) the backbone, nearly
     all of the model's cost, runs once per box too (``stages.export.embedded_boxes``), and a subset costs only
-    the graph part; without it every subset goes to ``relation`` (``OnnxRelation``) whole."""
+    the graph part; without it every subset goes to ``relation`` (``OnnxRelation``) whole. ``progress(done, total)``
+    is called after each batch of new subsets."""
 
     def __init__(self, relation, detections: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
-                 batch_size: int = 16, network=None):
-        self.relation, self.batch_size = relation, batch_size
+                 batch_size: int = 16, network=None, progress: Callable[[int, int], None] | None = None):
+        self.relation, self.batch_size, self.progress = relation, batch_size, progress
         self.predicted: dict[tuple[str, tuple[int, ...]], Record] = {}
         self.graphs = {d.image: relation.graph(d, load_rgb(d)) for d in detections}
         # a detection record's box ids are its rows (detections_to_record numbers them 0..N-1)
@@ -168,4 +169,6 @@ class SubsetRelation:
                 preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk],
                                                                          [r.box_ids for r in chunk]))
             self.predicted.update(zip((k for k, _ in part), preds, strict=True))
+            if self.progress is not None:
+                self.progress(start + len(part), len(pending))
         return [self.predicted[k] for k in keys]

@@ -75,19 +75,22 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
 
 def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
                  operating_point: dict | None = None, detector_ap: dict | None = None,
-                 min_sides: dict | None = None, end_to_end: dict | None = None) -> None:
+                 min_sides: dict | None = None, end_to_end: dict | None = None, search: dict | None = None) -> None:
     """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector. The
     detector's ``operating_point`` ({class name: score threshold}) and ``min_side`` ({class name: shorter box
     side in image pixels}), chosen on val, are what inference keeps; ``score_threshold`` is the lower bound of
     what its decoding returns at all. ``ap``: the detector stage's
     val/test AP, so that reports on this bundle can show it beside the end-to-end rows. ``end_to_end``: the method
-    for detected boxes and the rules fitted on train it may fall back on (``end_to_end_entry``)."""
+    for detected boxes and the rules fitted on train it may fall back on (``end_to_end_entry``). ``search``: the grid
+    the operating point was chosen from (``operating_point_search``), which ``deepword tune`` searches again."""
     detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
                                                                       "score_threshold", "class_names")}
     if detector is not None:
         detector["operating_point"] = operating_point
         detector["min_side"] = min_sides or {}
         detector["ap"] = detector_ap or {}
+        if search is not None:
+            detector["operating_point_search"] = search
     files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
                            "model": meta["model"]},
@@ -355,7 +358,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     }
     for name in ("static", "dynamic"):
         reports[name].check(f"export: {name} model", tol, agree)
-    det_metrics, operating_point, min_sides, det_ap = {}, None, None, None
+    det_metrics, operating_point, min_sides, det_ap, search = {}, None, None, None, None
     if det_net is not None:
         reports["detector"], det_metrics = export_detector_checked(det_net, det_cfg, ds, test, out_dir, ex, tol, agree)
         operating_point, min_sides, op_metrics = choose_operating_point(ds, out_dir, det_cfg, ex.operating_point,
@@ -363,7 +366,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                                                                         end_to_end["method"])
         det_metrics.update(op_metrics)
         det_ap = detector_ap(inputs["detector"])
-        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end)
+        search = {"grid": [float(t) for t in ex.operating_point.grid],
+                  "min_side_grid": {c: [float(v) for v in g]
+                                    for c, g in (ex.operating_point.get("min_side_grid") or {}).items()},
+                  "min_box_px": float(ex.min_box_px), "match_iou": float(ex.operating_point.match_iou)}
+        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -398,5 +405,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
         registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads},
-                 operating_point, det_ap, min_sides, end_to_end)
+                 operating_point, det_ap, min_sides, end_to_end, search)
     return metrics

@@ -1,0 +1,84 @@
+"""``deepword tune``: the operating point chosen again on labelled images, written as a bundle infer uses."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from stages.inference.runtime import BUNDLE_FILE, OnnxDetector
+from stages.inference.tune import main as tune
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_on_the_export_stages_val_split_tune_chooses_the_export_stages_point(upstream, exported, tmp_path):
+    """The same images, grid, protocol and method as the export stage (the bundle records them): the same point and
+    the same val pair_f1, though tune runs the ONNX model on each subset where the stage embedded each box once."""
+    out_dir, metrics = exported
+    assert tune(["--dataset", str(upstream["data"]), "--split", "val", "--export", str(out_dir),
+                 "--out", str(tmp_path / "tuned")]) == 0
+    shipped = json.loads((out_dir / BUNDLE_FILE).read_text())["detector"]
+    tuned = json.loads((tmp_path / "tuned" / BUNDLE_FILE).read_text())
+    assert tuned["detector"]["operating_point"] == shipped["operating_point"]
+    assert tuned["detector"]["min_side"] == {"vehicle": 0.0, **shipped["min_side"]}
+    entry = tuned["tuned"]
+    assert entry["method"] == "deepword_then_logic" and entry["images"] == 1 and entry["points"] == 18
+    assert entry["pair_f1"] == pytest.approx(metrics["export.detector.val_pair_f1"], abs=1e-9)
+    assert entry["pair_f1_at_bundle_point"] == pytest.approx(entry["pair_f1"], abs=1e-9)
+    assert (tmp_path / "tuned" / "artifacts" / "operating_point.png").is_file()
+    assert "| **chosen** |" in (tmp_path / "tuned" / "artifacts" / "operating_point.md").read_text()
+
+
+def test_the_tuned_bundle_is_what_infer_keeps_detections_at(upstream, exported, tmp_path, capsys):
+    out = tmp_path / "tuned"
+    args = ["--dataset", str(upstream["data"]), "--split", "test", "--export", str(exported[0]), "--out", str(out),
+            "--grid", "0.3", "--min-side", "wheel=5"]
+    assert tune(args) == 0
+    detector = OnnxDetector(out)
+    assert detector.class_thresholds == (0.3, 0.3) and detector.class_min_sides == (0.0, 5.0)
+    assert "minimum sides {'vehicle': 0.0, 'wheel': 5.0}" in capsys.readouterr().out
+    assert tune(args[:-1] + ["wheel=6"]) == 0   # a bundle tune wrote may be replaced
+    assert OnnxDetector(out).class_min_sides == (0.0, 6.0)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--split", "val", "--min-side", "bus=3"], "--min-side: expected CLASS=PX"),
+    (["--split", "val", "--grid", "0.2,x"], "--grid: '0.2,x' is not a comma-separated list"),
+    (["--split", "nope"], "unknown split 'nope'"),
+])
+def test_bad_options_are_one_line_errors(upstream, exported, tmp_path, capsys, extra, message):
+    assert tune(["--dataset", str(upstream["data"]), "--export", str(exported[0]), "--out", str(tmp_path / "t"),
+                 *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "t").exists()
+
+
+def test_split_needs_a_data_stage_output_and_out_must_not_be_the_bundle(upstream, exported, tmp_path, capsys):
+    plain = tmp_path / "plain"
+    shutil.copytree(upstream["data"], plain)
+    (plain / "splits.json").unlink()
+    (plain / "dataset.json").unlink()
+    assert tune(["--dataset", str(plain), "--split", "val", "--export", str(exported[0]), "--out",
+                 str(tmp_path / "t")]) == 2
+    assert "has no splits.json" in capsys.readouterr().err
+    assert tune(["--dataset", str(plain), "--export", str(exported[0]), "--out", str(exported[0]),
+                 "--grid", "0.5"]) == 2
+    assert "--out must be a new folder" in capsys.readouterr().err
+    (tmp_path / "other").mkdir()
+    assert tune(["--dataset", str(plain), "--export", str(exported[0]), "--out", str(tmp_path / "other"),
+                 "--grid", "0.5"]) == 2
+    assert "exists and is not a bundle" in capsys.readouterr().err
+
+
+def test_tune_never_imports_torch(upstream, exported, tmp_path):
+    code = ("import sys; from stages.cli import main; "
+            f"rc = main(['tune', '--dataset', {str(upstream['data'])!r}, '--split', 'test', '--export', "
+            f"{str(exported[0])!r}, '--out', {str(tmp_path / 't')!r}, '--grid', '0.5']); "
+            "assert rc == 0, rc; loaded = [m for m in ('torch', 'lightning') if m in sys.modules]; "
+            "assert not loaded, loaded")
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
