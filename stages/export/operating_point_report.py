@@ -1,11 +1,12 @@
-"""What the operating-point search saw, for people: ``artifacts/operating_point.{png,md}`` of the export stage.
+"""What the operating-point search saw, for people: ``artifacts/operating_point.{png,md}`` of the export stage
+(scored on the val split) and of ``deepword tune`` (on a user's labelled images).
 
 The search (``stages.export.operating_point``) scores every point of a grid and keeps one. Whether that one
 stands on a plateau or on a ridge, and how much a threshold a little off would cost, is what a user tuning the
 bundle for other images wants to know; a table of 6,760 numbers does not say it, two heat maps do:
 
-- left: val pair_f1 over the two classes' score thresholds, at the chosen minimum box sides;
-- right: val pair_f1 over the two classes' minimum box sides, at the chosen thresholds.
+- left: pair_f1 over the two classes' score thresholds, at the chosen minimum box sides;
+- right: pair_f1 over the two classes' minimum box sides, at the chosen thresholds.
 
 Both are cuts through the chosen point, which each marks. The markdown gives the chosen point, the best points of
 the search and the score with everything kept.
@@ -72,8 +73,9 @@ def _heatmap(ax, xs, ys, grid, chosen_xy, xlabel: str, ylabel: str, title: str, 
 
 
 def plot_operating_point(seen: Mapping[OperatingPoint, float], chosen: OperatingPoint, classes: Sequence[str],
-                         path: str | Path, method: str = "") -> None:
-    """The two cuts through ``chosen`` (module docstring) as one PNG; the chosen point framed in red."""
+                         path: str | Path, method: str = "", images: str = "the val split") -> None:
+    """The two cuts through ``chosen`` (module docstring) as one PNG; the chosen point framed in red. ``images``
+    says what the points were scored on."""
     if len(classes) != 2:
         raise ValueError(f"operating point plot: needs two classes, got {list(classes)}")
     import matplotlib
@@ -86,13 +88,13 @@ def plot_operating_point(seen: Mapping[OperatingPoint, float], chosen: Operating
     xs, ys, grid = threshold_surface(seen, chosen.min_sides)
     image = _heatmap(left, xs, ys, grid, chosen.thresholds, f"{a} score threshold", f"{b} score threshold",
                      f"at minimum sides {a} {chosen.min_sides[0]:g} px, {b} {chosen.min_sides[1]:g} px", "{:.2f}")
-    fig.colorbar(image, ax=left, label="val pair_f1 (%)")
+    fig.colorbar(image, ax=left, label="pair_f1 (%)")
     xs, ys, grid = side_surface(seen, chosen.thresholds)
     image = _heatmap(right, xs, ys, grid, chosen.min_sides, f"{a} minimum box side (px)",
                      f"{b} minimum box side (px)",
                      f"at score thresholds {a} {chosen.thresholds[0]:.2f}, {b} {chosen.thresholds[1]:.2f}", "{:g}")
-    fig.colorbar(image, ax=right, label="val pair_f1 (%)")
-    fig.suptitle(f"Operating point: val end-to-end pair_f1{' of ' + method if method else ''} "
+    fig.colorbar(image, ax=right, label="pair_f1 (%)")
+    fig.suptitle(f"Operating point: end-to-end pair_f1{' of ' + method if method else ''} on {images} "
                  f"(chosen: {seen[chosen]:.2f}, framed)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -101,7 +103,7 @@ def plot_operating_point(seen: Mapping[OperatingPoint, float], chosen: Operating
 
 def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: OperatingPoint, classes: Sequence[str],
                              at_score_threshold: float, method: str = "", alone: float | None = None,
-                             top: int = 10) -> str:
+                             top: int = 10, images: str = "the val split") -> str:
     """The chosen point, the ``top`` best points of the search and the pair_f1 with every detection kept."""
     def point_cells(p: OperatingPoint) -> str:
         return " | ".join([f"{t:.2f}" for t in p.thresholds] + [f"{s:g}" for s in p.min_sides])
@@ -110,15 +112,15 @@ def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: Opera
     ranked = sorted(seen.items(), key=lambda kv: (-kv[1], sum(kv[0].thresholds), kv[0].thresholds,
                                                   sum(kv[0].min_sides), kv[0].min_sides))
     lines = ["# Operating point (export stage)", "",
-             f"Chosen on the val split by the end-to-end pair_f1{' of `' + method + '`' if method else ''}, over "
+             f"Chosen on {images} by the end-to-end pair_f1{' of `' + method + '`' if method else ''}, over "
              f"{len(seen)} points; among equals the one that keeps the most. `operating_point.png` shows the "
              "cuts through it.", "",
-             f"| | {head} | val pair_f1 |", "|---" * (2 * len(classes) + 2) + "|",
+             f"| | {head} | pair_f1 |", "|---" * (2 * len(classes) + 2) + "|",
              f"| **chosen** | {point_cells(chosen)} | **{seen[chosen]:.2f}** |"]
     if alone is not None:
         lines.append(f"| the relation model alone, same point | {point_cells(chosen)} | {alone:.2f} |")
     lines.append(f"| every detection kept | {' | '.join(['–'] * (2 * len(classes)))} | {at_score_threshold:.2f} |")
-    lines += ["", f"The {min(top, len(ranked))} best points:", "", f"| rank | {head} | val pair_f1 |",
+    lines += ["", f"The {min(top, len(ranked))} best points:", "", f"| rank | {head} | pair_f1 |",
               "|---" * (2 * len(classes) + 2) + "|"]
     lines += [f"| {i} | {point_cells(p)} | {f1:.2f} |" for i, (p, f1) in enumerate(ranked[:top], 1)]
     return "\n".join(lines) + "\n"

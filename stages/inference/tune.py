@@ -10,7 +10,7 @@ searches the same grid by the same criterion (end-to-end pair_f1 of the bundle's
 ``--method``) and writes ``DIR``: a copy of the bundle whose ``export.json`` holds the new point (and ``tuned``:
 where it came from and what it scored), with ``artifacts/operating_point.{md,png}`` of this search. Use it with
 ``deepword infer --export DIR``. Torch is never imported; each subset of an image's boxes runs the ONNX relation
-model whole: a hundred images and the export stage's 6,760 points take about four minutes on two threads.
+model whole: a hundred images and the export stage's 6,760 points take 4-5 minutes on two threads.
 
 Choose on images you will not report results on: a point chosen and scored on the same images flatters itself.
 """
@@ -176,9 +176,11 @@ def tune(args) -> dict:
     (args.out / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
     artifacts = args.out / "artifacts"
     artifacts.mkdir(exist_ok=True)
-    (artifacts / "operating_point.md").write_text(operating_point_markdown(seen, chosen, classes, f1_floor, name))
+    images = f"{len(truths)} labelled images" + (f" (split {args.split})" if args.split else "")
+    (artifacts / "operating_point.md").write_text(operating_point_markdown(seen, chosen, classes, f1_floor, name,
+                                                                           images=images))
     if len(classes) == 2:
-        plot_operating_point(seen, chosen, classes, artifacts / "operating_point.png", name)
+        plot_operating_point(seen, chosen, classes, artifacts / "operating_point.png", name, images)
     return tuned
 
 
