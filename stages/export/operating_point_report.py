@@ -111,7 +111,7 @@ def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: Opera
     head = " | ".join([f"{c} score ≥" for c in classes] + [f"{c} side ≥ (px)" for c in classes])
     ranked = sorted(seen.items(), key=lambda kv: (-kv[1], sum(kv[0].thresholds), kv[0].thresholds,
                                                   sum(kv[0].min_sides), kv[0].min_sides))
-    lines = ["# Operating point (export stage)", "",
+    lines = ["# Operating point", "",
              f"Chosen on {images} by the end-to-end pair_f1{' of `' + method + '`' if method else ''}, over "
              f"{len(seen)} points; among equals the one that keeps the most. `operating_point.png` shows the "
              "cuts through it.", "",
