@@ -131,9 +131,8 @@ def tune(args) -> dict:
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     shipped = OnnxDetector(export, args.threads)
     pixels = {}
-    print(f"detecting on {len(truths)} images ...", file=sys.stderr)
     detections = []
-    for truth in truths:
+    for truth in tqdm(truths, desc="detector", unit="image", file=sys.stderr, leave=False, mininterval=5.0):
         pixels[truth.image] = load_image(root, truth)
         detections.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
     bar = tqdm(desc="relation model on subsets of the boxes", unit="subset", file=sys.stderr, leave=False,
@@ -146,6 +145,7 @@ def tune(args) -> dict:
 
     relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), detections, lambda r: pixels[r.image],
                               progress=progress)
+    pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
     method = relation if name in METHOD_VARIANTS else batch_with_fallback(relation, bundle_rule(export, FALLBACKS[name][1]))
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())
     print(f"searching {points} operating points by the pair_f1 of {name} ...", file=sys.stderr)
