@@ -21,7 +21,8 @@ import numpy as np
 
 from stages.export.operating_point import OperatingPoint
 
-__all__ = ["side_surface", "threshold_surface", "operating_point_markdown", "plot_operating_point"]
+__all__ = ["side_surface", "threshold_surface", "operating_point_markdown", "plot_operating_point",
+           "write_operating_point_report"]
 
 
 def _surface(seen: Mapping[OperatingPoint, float], axis: str, fixed: tuple[float, ...]
@@ -62,11 +63,10 @@ def _heatmap(ax, xs, ys, grid, chosen_xy, xlabel: str, ylabel: str, title: str, 
     ax.set_yticks(range(len(ys)), [fmt.format(y) for y in ys])
     ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
     best = float(finite.max())
-    for i in range(len(ys)):
-        for j in range(len(xs)):
-            if np.isfinite(grid[i, j]) and len(xs) * len(ys) <= 200:   # the numbers, where they still fit
-                ax.text(j, i, f"{grid[i, j]:.1f}", ha="center", va="center", fontsize=6,
-                        color="black" if grid[i, j] > best - 0.35 * (best - finite.min()) else "white")
+    if grid.size <= 200:   # the numbers, where they still fit
+        for i, j in zip(*np.nonzero(np.isfinite(grid)), strict=True):
+            ax.text(j, i, f"{grid[i, j]:.1f}", ha="center", va="center", fontsize=6,
+                    color="black" if grid[i, j] > best - 0.35 * (best - finite.min()) else "white")
     cx, cy = xs.index(chosen_xy[0]), ys.index(chosen_xy[1])
     ax.add_patch(Rectangle((cx - 0.5, cy - 0.5), 1, 1, fill=False, edgecolor="red", linewidth=2))
     return image
@@ -124,3 +124,15 @@ def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: Opera
               "|---" * (2 * len(classes) + 2) + "|"]
     lines += [f"| {i} | {point_cells(p)} | {f1:.2f} |" for i, (p, f1) in enumerate(ranked[:top], 1)]
     return "\n".join(lines) + "\n"
+
+
+def write_operating_point_report(directory: str | Path, seen: Mapping[OperatingPoint, float], chosen: OperatingPoint,
+                                 classes: Sequence[str], at_score_threshold: float, method: str = "",
+                                 alone: float | None = None, images: str = "the val split") -> None:
+    """``operating_point.md`` in ``directory``, and ``operating_point.png`` where there are two classes to plot."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "operating_point.md").write_text(operating_point_markdown(
+        seen, chosen, classes, at_score_threshold, method, alone, images=images))
+    if len(classes) == 2:
+        plot_operating_point(seen, chosen, classes, directory / "operating_point.png", method, images)

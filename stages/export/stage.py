@@ -262,7 +262,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
         end_to_end_pair_f1,
         search_operating_point,
     )
-    from stages.export.operating_point_report import operating_point_markdown, plot_operating_point
+    from stages.export.operating_point_report import write_operating_point_report
     from stages.inference.runtime import OnnxDetector
 
     val = _limit(ds.subset("val"), op_cfg.images)
@@ -298,12 +298,8 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     # DeepWORD alone at the same point: what the fallback adds on val
     alone = float(end_to_end_pair_f1(val, detections, chosen, relation, min_box_px, match_iou))
     split_metrics["export.detector.val_pair_f1_deepword"] = alone
-    artifacts = out_dir / "artifacts"
-    artifacts.mkdir(exist_ok=True)
-    (artifacts / "operating_point.md").write_text(operating_point_markdown(
-        seen, chosen, classes, f1_floor, method_name, alone if fallback is not None else None))
-    if len(classes) == 2:
-        plot_operating_point(seen, chosen, classes, artifacts / "operating_point.png", method_name)
+    write_operating_point_report(out_dir / "artifacts", seen, chosen, classes, f1_floor, method_name,
+                                 alone if fallback is not None else None)
     thresholds = dict(zip(classes, chosen.thresholds, strict=True))
     min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},

@@ -241,6 +241,19 @@ class NoDetectorError(LookupError):
     """The bundle was exported without a detector (its run had ``pipeline.skip=[detector]``)."""
 
 
+def bundle_operating_point(detector_cfg: dict) -> tuple[tuple[float, ...] | None, tuple[float, ...]]:
+    """(per-class score thresholds, per-class minimum box sides) of a bundle's ``detector`` entry, in class order:
+    the operating point chosen on val (stages/export/operating_point.py). A bundle from before it existed has no
+    thresholds (None: everything above ``score_threshold`` is kept) and no minimum sides."""
+    names, floor = detector_cfg["class_names"], float(detector_cfg["score_threshold"])
+    operating_point = detector_cfg.get("operating_point")
+    if not operating_point:
+        return None, (0.0,) * len(names)
+    min_side = detector_cfg.get("min_side") or {}
+    return (tuple(max(floor, float(operating_point[n])) for n in names),
+            tuple(float(min_side.get(n, 0.0)) for n in names))
+
+
 class OnnxDetector:
     """The exported CenterNet: letterbox + normalise (``stages.detector.letterbox``), onnxruntime, and the
     detector stage's own detections -> WORD record conversion."""
@@ -253,14 +266,9 @@ class OnnxDetector:
                                   "pipeline.skip=[detector]); use a run that trained one")
         self.input_width, self.input_height = int(cfg["input_width"]), int(cfg["input_height"])
         self.score_threshold = float(cfg["score_threshold"])
-        # Per-class thresholds and minimum box sides chosen on val (stages/export/operating_point.py); a bundle from
-        # before they existed, or at_operating_point=False (AP, the search itself), keeps everything above
-        # score_threshold.
-        operating_point = cfg.get("operating_point") if at_operating_point else None
-        min_side = (cfg.get("min_side") or {}) if operating_point else {}
-        self.class_thresholds = None if not operating_point else tuple(
-            max(self.score_threshold, float(operating_point[name])) for name in cfg["class_names"])
-        self.class_min_sides = tuple(float(min_side.get(name, 0.0)) for name in cfg["class_names"])
+        # at_operating_point=False (AP, the search itself) keeps everything above score_threshold
+        self.class_thresholds, self.class_min_sides = (
+            bundle_operating_point(cfg) if at_operating_point else (None, (0.0,) * len(cfg["class_names"])))
         self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)
 
     def detect(self, rgb: np.ndarray, source: Record) -> Record:

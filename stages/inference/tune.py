@@ -91,15 +91,16 @@ def tune(args) -> dict:
     from stages.export.operating_point import (
         OperatingPoint,
         SubsetRelation,
-        SubsetScores,
+        end_to_end_pair_f1,
         search_operating_point,
     )
-    from stages.export.operating_point_report import operating_point_markdown, plot_operating_point
+    from stages.export.operating_point_report import write_operating_point_report
     from stages.inference.infer import resolve_dirs
     from stages.inference.runtime import (
         BUNDLE_FILE,
         OnnxDetector,
         OnnxRelation,
+        bundle_operating_point,
         bundle_rule,
         end_to_end_method,
         read_bundle,
@@ -122,14 +123,12 @@ def tune(args) -> dict:
         raise TuneError(f"{args.dataset}: no labelled images to tune on")
     classes = list(bundle["detector"]["class_names"])
     thresholds, sides = search_space(bundle, args.grid, args.min_side)
+    # the export stage's evaluation protocol, else the evaluation's defaults
     searched = bundle["detector"].get("operating_point_search") or {}
-    if args.min_box_px is None:   # the export stage's evaluation protocol, else the evaluation's default
-        args.min_box_px = float(searched.get("min_box_px", 8.0))
-    if args.match_iou is None:
-        args.match_iou = float(searched.get("match_iou", 0.5))
+    min_box_px = float(searched.get("min_box_px", 8.0)) if args.min_box_px is None else args.min_box_px
+    match_iou = float(searched.get("match_iou", 0.5)) if args.match_iou is None else args.match_iou
 
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
-    shipped = OnnxDetector(export, args.threads)
     pixels = {}
     detections = []
     for truth in tqdm(truths, desc="detector", unit="image", file=sys.stderr, leave=False, mininterval=5.0):
@@ -150,17 +149,14 @@ def tune(args) -> dict:
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())
     print(f"searching {points} operating points by the pair_f1 of {name} ...", file=sys.stderr)
     chosen, seen = search_operating_point(truths, detections, method, len(classes), thresholds,
-                                          [sides[c] for c in classes], args.min_box_px, args.match_iou)
+                                          [sides[c] for c in classes], min_box_px, match_iou)
     bar.close()
-    before = OperatingPoint(shipped.class_thresholds or (detector.score_threshold,) * len(classes),
-                            shipped.class_min_sides)
-    f1_before = seen.get(before)
-    if f1_before is None:   # the bundle's point lies off this grid
-        f1_before = SubsetScores(truths, detections, method, args.min_box_px, args.match_iou).pair_f1([before])[0]
+    shipped_thresholds, shipped_sides = bundle_operating_point(bundle["detector"])
+    before = OperatingPoint(shipped_thresholds or (detector.score_threshold,) * len(classes), shipped_sides)
     floor = OperatingPoint((detector.score_threshold,) * len(classes), (0.0,) * len(classes))
-    f1_floor = seen.get(floor)
-    if f1_floor is None:
-        f1_floor = SubsetScores(truths, detections, method, args.min_box_px, args.match_iou).pair_f1([floor])[0]
+    # either may lie off the searched grid
+    f1_before, f1_floor = (seen[p] if p in seen else end_to_end_pair_f1(truths, detections, p, method, min_box_px,
+                                                                         match_iou) for p in (before, floor))
 
     if args.out.exists():
         shutil.rmtree(args.out)
@@ -171,16 +167,11 @@ def tune(args) -> dict:
              "from": str(Path(export).resolve()), "pair_f1": seen[chosen], "pair_f1_at_bundle_point": f1_before,
              "bundle_point": {"operating_point": dict(zip(classes, before.thresholds, strict=True)),
                               "min_side": dict(zip(classes, before.min_sides, strict=True))},
-             "min_box_px": args.min_box_px, "match_iou": args.match_iou, "points": len(seen)}
+             "min_box_px": min_box_px, "match_iou": match_iou, "points": len(seen)}
     bundle["tuned"] = tuned
     (args.out / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
-    artifacts = args.out / "artifacts"
-    artifacts.mkdir(exist_ok=True)
     images = f"{len(truths)} labelled images" + (f" (split {args.split})" if args.split else "")
-    (artifacts / "operating_point.md").write_text(operating_point_markdown(seen, chosen, classes, f1_floor, name,
-                                                                           images=images))
-    if len(classes) == 2:
-        plot_operating_point(seen, chosen, classes, artifacts / "operating_point.png", name, images)
+    write_operating_point_report(args.out / "artifacts", seen, chosen, classes, f1_floor, name, images=images)
     return tuned
 
 
