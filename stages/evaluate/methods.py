@@ -11,10 +11,13 @@ source is one function in ``BOX_SOURCES``.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+
+import numpy as np
 
 from stages.evaluate.baselines import (
     CoupleRule,
@@ -26,10 +29,47 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
-from stages.evaluate.fallback import FALLBACKS
-from stages.word_format import Dataset, Record, boxes_only, read_records
+from stages.evaluate.fallback import FALLBACKS, ClaimFallback
+from stages.word_format import Dataset, Record, boxes_only, load_image, read_records
 
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
+
+
+DECODED_IMAGES_KEPT = 4
+
+
+class RecentImages:
+    """``load_rgb(record)`` keeping the last ``keep`` decoded images, read-only (an in-place change by one row
+    would reach the next one's input)."""
+
+    def __init__(self, root: str | Path, keep: int):
+        self.root, self.keep, self.images = root, keep, OrderedDict()
+
+    def __call__(self, rec: Record) -> np.ndarray:
+        if rec.image in self.images:
+            self.images.move_to_end(rec.image)
+            return self.images[rec.image]
+        rgb = load_image(self.root, rec)
+        rgb.flags.writeable = False
+        self.images[rec.image] = rgb
+        if len(self.images) > self.keep:
+            self.images.popitem(last=False)
+        return rgb
+
+
+@dataclass
+class Remembered:
+    """A row whose predictions are kept per image and boxes (records are never changed once predicted)."""
+
+    method: object      # predict(record) -> Record
+    name: str
+    kept: dict = field(default_factory=dict, repr=False)
+
+    def predict(self, rec: Record) -> Record:
+        key = (rec.image, rec.boxes.tobytes())
+        if key not in self.kept:
+            self.kept[key] = self.method.predict(rec)
+        return self.kept[key]
 
 
 @dataclass
@@ -45,6 +85,21 @@ class EvalContext:
     priors: object         # stages.priors.mixture.Priors
     notes: list[str] = field(default_factory=list)
     fit_dataset: Dataset | None = None
+    _shared: dict = field(default_factory=dict, repr=False)
+
+    def shared(self, name: str, build: Callable[[], object]) -> Remembered:
+        """The one instance of row ``name`` in this context, built by ``build`` on first use: the rows that add to
+        another row's predictions (``deepword_then_logic`` on ``deepword``) reuse them instead of running the model
+        again on the same boxes."""
+        if name not in self._shared:
+            self._shared[name] = Remembered(build(), name)
+        return self._shared[name]
+
+    @cached_property
+    def load_rgb(self) -> RecentImages:
+        """The scored dataset's images, the last few decoded kept: the evaluate stage runs every row on one image
+        before the next (``score_dataset``), so ``deepword`` and ``deepword_int8`` decode each image once."""
+        return RecentImages(self.dataset.root, DECODED_IMAGES_KEPT)
 
     @cached_property
     def train(self) -> list[TrainImage]:
@@ -86,7 +141,8 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
             return None
         from stages.inference.runtime import deepword_method
 
-        return deepword_method(name, ctx.inputs["export"], ctx.dataset.root)
+        return ctx.shared(name, lambda: deepword_method(name, ctx.inputs["export"], ctx.dataset.root,
+                                                        load_rgb=ctx.load_rgb))
 
     return factory
 
@@ -99,9 +155,11 @@ def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
     def factory(ctx: EvalContext):
         if "export" not in ctx.inputs:
             return None
-        from stages.inference.runtime import bundle_method
+        from stages.inference.runtime import bundle_rule
 
-        return bundle_method(name, ctx.inputs["export"], ctx.dataset.root)
+        primary, fallback = FALLBACKS[name]
+        # the primary row's own instance: on boxes it has already predicted, its relations are reused
+        return ClaimFallback(METHODS[primary](ctx), bundle_rule(ctx.inputs["export"], fallback), name)
 
     return factory
 

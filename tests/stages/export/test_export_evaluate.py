@@ -132,3 +132,39 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
     # without an export (a relation-only run) there is nothing to measure
     assert methods.detections_for_ap(methods.EvalContext(cfg=None, seed=0, inputs=upstream, dataset=dataset,
                                                          priors=None)) is None
+
+
+def test_the_rows_share_each_image_and_deepwords_predictions(upstream, exported, tmp_path, monkeypatch):
+    """Every row runs on one image before the next: ``deepword`` and ``deepword_int8`` decode it once between
+    them, and ``deepword_then_logic`` adds to ``deepword``'s predictions instead of running the model again."""
+    from omegaconf import OmegaConf
+
+    import stages.evaluate.methods as methods
+    from stages.evaluate.stage import run
+    from stages.inference.runtime import OnnxRelation
+    from stages.word_format import open_dataset
+
+    decoded, relation_runs = [], []
+    load = methods.load_image
+    monkeypatch.setattr(methods, "load_image", lambda root, rec: decoded.append(rec.image) or load(root, rec))
+    predict_many = OnnxRelation.predict_many
+
+    def counted(self, records, load_rgb):
+        relation_runs.append([r.image for r in records])
+        return predict_many(self, records, load_rgb)
+
+    monkeypatch.setattr(OnnxRelation, "predict_many", counted)
+    cfg = {"min_box_px": 4, "match_iou": 0.5, "methods": ["deepword", "deepword_int8", "deepword_then_logic"],
+           "box_sources": ["gt"], "fit_images": 20, "gallery_images": 0,
+           "baseline_grids": OmegaConf.load(Path(__file__).parents[3] / "conf/eval/default.yaml").baseline_grids}
+    run(OmegaConf.create({"eval": cfg, "seed": 0}), {**upstream, "export": exported[0]}, tmp_path)
+    test_images = [r.image for r in open_dataset(upstream["data"]).subset("test")]
+    assert sorted(decoded) == sorted(test_images)                     # once each, for both models
+    assert sorted(relation_runs) == sorted([[i] for i in test_images] * 2)   # fp32 and int8, not fp32 twice
+    # and the rows are what they were: deepword_then_logic starts with deepword's own claims
+    from stages.word_format import read_records
+
+    rows = {m: {r.image: r for r in read_records(tmp_path / "predictions" / f"gt_{m}.jsonl", allow_empty=True)}
+            for m in ("deepword", "deepword_then_logic")}
+    for image, rec in rows["deepword"].items():
+        assert rows["deepword_then_logic"][image].relations[:len(rec.relations)] == rec.relations
