@@ -117,7 +117,7 @@ class EvalContext:
         from stages.word_format import load_image
 
         try:
-            detector = OnnxDetector(self.inputs["export"])
+            detector = OnnxDetector(self.inputs["export"], threads=int(self.cfg.get("threads", 1)))
         except NoDetectorError:
             return None
         return detector, {r.image: detector.detect_every(load_image(self.dataset.root, r), r)
@@ -163,6 +163,9 @@ def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
 
     return factory
 
+
+# rows fitted on the train sample alone (EvalContext.train): the held-out domain's rows reuse the in-domain fits
+FITTED_ON_TRAIN = ("logic", "logic_plus", "prior")
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule, ctx.grids.logic_iou),

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from stages.evaluate.baselines import baseline_params
 from stages.evaluate.gallery import write_gallery
-from stages.evaluate.methods import BOX_SOURCES, METHODS, EvalContext, detections_for_ap
+from stages.evaluate.methods import BOX_SOURCES, FITTED_ON_TRAIN, METHODS, EvalContext, detections_for_ap
 from stages.evaluate.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
 from stages.evaluate.report import (
     HEADLINE_METHOD,
@@ -46,13 +46,15 @@ def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
     return Path(pred_dir) / f"{boxes}_{method}.jsonl"
 
 
-def build_methods(ctx: EvalContext) -> dict[str, object]:
-    """Instantiate (fit) the configured methods; a method whose inputs are absent is noted and skipped."""
+def build_methods(ctx: EvalContext, fitted: dict[str, object] | None = None) -> dict[str, object]:
+    """Instantiate (fit) the configured methods; a method whose inputs are absent is noted and skipped. Rows of
+    ``FITTED_ON_TRAIN`` found in ``fitted`` (the same rows fitted on the same train sample) are reused as they are."""
     methods = {}
     for name in ctx.cfg.methods:
         if name not in METHODS:
             raise ValueError(f"eval.methods: unknown method {name!r}; known: {sorted(METHODS)}")
-        method = METHODS[name](ctx)
+        reuse = fitted is not None and name in FITTED_ON_TRAIN and name in fitted
+        method = fitted[name] if reuse else METHODS[name](ctx)
         if method is None:
             ctx.notes.append(f"`{name}` skipped: an upstream stage it needs is not an input of evaluate")
         else:
@@ -124,13 +126,13 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
               "paper_table3": PAPER_TABLE3, "min_box_px": min_px, "match_iou": iou, "end_to_end": end_to_end}
     metrics = flatten(results)
     if "shift_data" in inputs:
-        metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR)
+        metrics |= score_heldout(ctx, open_dataset(inputs["shift_data"]), out_dir / SHIFT_DIR, methods)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     lead = headline_markdown(results, detector, end_to_end)
     (out_dir / "report.md").write_text(render_markdown(results, sizes, ctx.notes, "Table 3: owner-member relations",
                                                        lead, errors))
     (out_dir / BASELINES_FILE).write_text(json.dumps(
-        {name: baseline_params(m) for name, m in methods.items() if name in ("logic", "logic_plus", "prior")},
+        {name: baseline_params(m) for name, m in methods.items() if name in FITTED_ON_TRAIN},
         indent=1))
 
     artifacts = out_dir / "artifacts"
@@ -149,10 +151,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     return {**headline_metrics(results, end_to_end), **metrics}
 
 
-def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
-    """Every row on the held-out domain's test set, baselines fitted on the in-domain train split as for
-    the in-domain rows: ``eval.shift.<boxes>.<method>.<subset>.<metric>`` and, with detections,
-    ``detector.shift.{ap50,ap}.<class>``; ``out_dir`` gets the predictions and report.md/json."""
+def score_heldout(ctx: EvalContext, heldout, out_dir: Path, fitted: dict[str, object]) -> dict[str, float]:
+    """Every row on the held-out domain's test set, with the baselines the in-domain rows were fitted with
+    (``fitted``, on the in-domain train split): ``eval.shift.<boxes>.<method>.<subset>.<metric>`` and, with
+    detections, ``detector.shift.{ap50,ap}.<class>``; ``out_dir`` gets the predictions and report.md/json."""
     from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
     from stages.detector.model import CLASS_NAMES
     from stages.detector.stage import ap_metrics
@@ -160,7 +162,7 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path) -> dict[str, float]:
     shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
                             fit_dataset=ctx.dataset)
     shift_ctx.train = ctx.train  # the same fitting sample: the held-out set has no train split
-    results, errors, _ = score_dataset(shift_ctx, build_methods(shift_ctx), out_dir / "predictions")
+    results, errors, _ = score_dataset(shift_ctx, build_methods(shift_ctx, fitted), out_dir / "predictions")
     min_px = float(ctx.cfg.min_box_px)
     sizes = subset_sizes(heldout, min_px)
     (out_dir / "report.json").write_text(json.dumps({"results": results, "pair_errors": errors, "sizes": sizes,

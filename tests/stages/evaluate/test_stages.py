@@ -110,11 +110,19 @@ def test_unknown_method_is_an_error(chain, tmp_path):
         run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
 
 
-def test_evaluate_stage_scores_the_held_out_domain_beside_the_in_domain_rows(chain, tmp_path):
-    """The same dataset as `data` and as `shift_data`: every eval.shift row equals its in-domain row."""
+def test_evaluate_stage_scores_the_held_out_domain_beside_the_in_domain_rows(chain, tmp_path, monkeypatch):
+    """The same dataset as `data` and as `shift_data`: every eval.shift row equals its in-domain row, and the
+    held-out rows use the baselines fitted for the in-domain ones (each fitted once)."""
+    import stages.evaluate.methods as methods
+
     _, data, priors_dir, _ = chain
+    fits = []
+    for name in ("logic", "logic_plus", "prior"):
+        fit = methods.METHODS[name]
+        monkeypatch.setitem(methods.METHODS, name, lambda ctx, fit=fit, name=name: fits.append(name) or fit(ctx))
     cfg = OmegaConf.create({"eval": dict(EVAL_CFG, box_sources=["gt"], gallery_images=0), "seed": 0})
     metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "shift_data": data}, tmp_path)
+    assert sorted(fits) == ["logic", "logic_plus", "prior"]
     in_domain = {k: v for k, v in metrics.items() if k.startswith("eval.gt.")}
     shifted = {k.replace("eval.shift.", "eval.", 1): v for k, v in metrics.items() if k.startswith("eval.shift.")}
     assert in_domain and shifted == in_domain

@@ -110,8 +110,8 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
     class FakeDetector:
         """Each test image's true boxes as detections scored 0.2 and 0.6 in turn; 0.5 the operating point."""
 
-        def __init__(self, bundle_dir):
-            pass
+        def __init__(self, bundle_dir, threads=1):
+            sessions.append(threads)
 
         def detect_every(self, rgb, source):
             boxes = source.boxes.copy()
@@ -121,11 +121,15 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
         def keep_operating_point(self, record):
             return replace(record, boxes=record.boxes[record.boxes[:, 4] >= 0.5])
 
+    from omegaconf import OmegaConf
+
+    sessions = []
     monkeypatch.setattr(runtime, "OnnxDetector", FakeDetector)
     dataset = open_dataset(upstream["data"])
-    ctx = methods.EvalContext(cfg=None, seed=0, inputs={**upstream, "export": upstream["data"]}, dataset=dataset,
-                              priors=None)
+    ctx = methods.EvalContext(cfg=OmegaConf.create({"threads": 2}), seed=0,
+                              inputs={**upstream, "export": upstream["data"]}, dataset=dataset, priors=None)
     every, at_point = methods.detections_for_ap(ctx), methods.detected_boxes(ctx)
+    assert sessions == [2]  # one detector pass serves both, with eval.threads
     assert [r.image for r in every] == list(at_point) == [r.image for r in dataset.subset("test")]
     assert any((r.scores == 0.2).any() for r in every)
     assert all((r.scores == 0.6).all() for r in at_point.values())
