@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,6 +38,7 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
 
     from stages.detector.decode import decode_outputs
     from stages.detector.model import DOWN_RATIO
+    from stages.loader_workers import usable_cores
 
     net.eval()
     device = next(net.parameters()).device
@@ -48,7 +48,7 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
 
     out: list[Record] = []
     # OpenCV's decoding and resizing release the GIL: threads keep a GPU (or the CPU's other cores) fed
-    with ThreadPoolExecutor(max_workers=min(8, os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(max_workers=min(8, usable_cores())) as pool:
         for start in range(0, len(records), batch_size):
             chunk = records[start:start + batch_size]
             inputs, boxes = zip(*pool.map(prepared, chunk), strict=True)

@@ -11,7 +11,6 @@ source is one function in ``BOX_SOURCES``.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -35,41 +34,35 @@ from stages.word_format import Dataset, Record, boxes_only, load_image, read_rec
 DETECTOR_PREDICTIONS = "predictions_test.jsonl"
 
 
-DECODED_IMAGES_KEPT = 4
+class LastImage:
+    """``load_rgb(record)`` keeping the last decoded image, read-only (an in-place change by one row would reach the
+    next one's input): the evaluate stage runs every row on one image before the next (``score_dataset``)."""
 
-
-class RecentImages:
-    """``load_rgb(record)`` keeping the last ``keep`` decoded images, read-only (an in-place change by one row
-    would reach the next one's input)."""
-
-    def __init__(self, root: str | Path, keep: int):
-        self.root, self.keep, self.images = root, keep, OrderedDict()
+    def __init__(self, root: str | Path):
+        self.root, self.last = root, None   # (image, rgb)
 
     def __call__(self, rec: Record) -> np.ndarray:
-        if rec.image in self.images:
-            self.images.move_to_end(rec.image)
-            return self.images[rec.image]
-        rgb = load_image(self.root, rec)
-        rgb.flags.writeable = False
-        self.images[rec.image] = rgb
-        if len(self.images) > self.keep:
-            self.images.popitem(last=False)
-        return rgb
+        if self.last is None or self.last[0] != rec.image:
+            rgb = load_image(self.root, rec)
+            rgb.flags.writeable = False
+            self.last = (rec.image, rgb)
+        return self.last[1]
 
 
 @dataclass
 class Remembered:
-    """A row whose predictions are kept per image and boxes (records are never changed once predicted)."""
+    """A row that keeps its last prediction (records are never changed once predicted): the evaluate stage runs
+    every row on one image before the next, so a row building on this one gets its prediction of the same boxes."""
 
     method: object      # predict(record) -> Record
     name: str
-    kept: dict = field(default_factory=dict, repr=False)
+    last: tuple | None = field(default=None, repr=False)   # ((image, boxes bytes), prediction)
 
     def predict(self, rec: Record) -> Record:
         key = (rec.image, rec.boxes.tobytes())
-        if key not in self.kept:
-            self.kept[key] = self.method.predict(rec)
-        return self.kept[key]
+        if self.last is None or self.last[0] != key:
+            self.last = (key, self.method.predict(rec))
+        return self.last[1]
 
 
 @dataclass
@@ -96,10 +89,10 @@ class EvalContext:
         return self._shared[name]
 
     @cached_property
-    def load_rgb(self) -> RecentImages:
-        """The scored dataset's images, the last few decoded kept: the evaluate stage runs every row on one image
-        before the next (``score_dataset``), so ``deepword`` and ``deepword_int8`` decode each image once."""
-        return RecentImages(self.dataset.root, DECODED_IMAGES_KEPT)
+    def load_rgb(self) -> LastImage:
+        """The scored dataset's images, the last one decoded kept: ``deepword`` and ``deepword_int8`` decode each
+        image once between them."""
+        return LastImage(self.dataset.root)
 
     @cached_property
     def train(self) -> list[TrainImage]:
