@@ -23,7 +23,7 @@ from __future__ import annotations
 import itertools
 import random
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -368,7 +368,13 @@ def fit_logic(images: list[TrainImage], couple_rule: CoupleRule, thresholds: Seq
 
 def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, grid: dict[str, Sequence[float]],
                    rounds: int) -> LogicPlus:
-    """Robust statistics of the true pairs, then coordinate-wise grid search of the gates and weights."""
+    """Robust statistics of the true pairs, then coordinate-wise grid search of the gates and weights, visited in
+    ``LogicPlusParams``' field order whatever order ``grid`` lists them in: a coordinate search depends on its order,
+    and the cache key reads the config with sorted keys, so two orders of the YAML must fit the same rule."""
+    order = [f.name for f in fields(LogicPlusParams) if f.name in grid]
+    if unknown := sorted(set(grid) - set(order)):
+        raise ValueError(f"eval.baseline_grids.logic_plus: {unknown} are not LogicPlusParams fields "
+                         f"(expected some of {[f.name for f in fields(LogicPlusParams)]})")
     feats = [PairFeatures.of(im.obj) for im in images]
     ratio_logs, size_logs = [], []
     for im, f in zip(images, feats, strict=True):
@@ -384,8 +390,8 @@ def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, grid: dict
 
     best_params, best_score = model.params, objective(model.params)
     for _ in range(rounds):
-        for name, values in grid.items():
-            for value in values:
+        for name in order:
+            for value in grid[name]:
                 params = replace(best_params, **{name: value})
                 score = objective(params)
                 if score > best_score + 1e-9:

@@ -113,6 +113,18 @@ def test_fitting_on_train_and_logic_plus_at_least_logic():
     assert scores["logic_plus"]["wheel_acc"] > 95 and scores["logic_plus"]["couple_f1"] > 90
 
 
+def test_logic_plus_fits_the_same_rule_whatever_order_its_grid_lists_the_fields_in():
+    # the cache key hashes the config with sorted keys: a reordered YAML must not fit another rule under the same key
+    rng = np.random.default_rng(1)
+    images = prepare_train([make_record(rng, i, int(rng.integers(1, 7))) for i in range(40)], 0.0, 1000, seed=0)
+    rule = fit_couple_rule(images, GRIDS.couple_tolerance)
+    orders = [dict(GRIDS.logic_plus), dict(reversed(GRIDS.logic_plus.items())), dict(sorted(GRIDS.logic_plus.items()))]
+    fitted = [fit_logic_plus(images, rule, grid, rounds=1).params for grid in orders]
+    assert fitted[1] == fitted[0] and fitted[2] == fitted[0]
+    with pytest.raises(ValueError, match=r"logic_plus: \['w_tilt'\] are not LogicPlusParams fields"):
+        fit_logic_plus(images, rule, {**GRIDS.logic_plus, "w_tilt": (0.0, 1.0)}, rounds=1)
+
+
 def toy_priors() -> Priors:
     wv = make_pair_prior("prior", Mixture1D([1.0], [np.log(3.0)], [0.05]), None, 1, 0)
     ww = make_pair_prior("prior", Mixture1D([1.0], [np.log(4.0)], [0.05]), None, 1, 0)
