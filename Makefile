@@ -17,8 +17,11 @@ $(STAMP): pyproject.toml
 pipeline: setup
 	$(PY) -m pipeline $(ARGS)
 
+# Two test processes (pytest-xdist): CI has two cores, and many tests wait on a pipeline subprocess of one thread.
+# TEST_WORKERS=0 runs the suite in one process.
+TEST_WORKERS ?= 2
 test: setup
-	$(PY) -m pytest $(ARGS)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadgroup $(ARGS)
 
 ablations: setup
 	for t in table1 table2 table3; do $(PY) -m pipeline experiment=$$t $(ARGS) || exit 1; done

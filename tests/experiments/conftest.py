@@ -20,13 +20,22 @@ def _start_smoke(tmp: Path) -> None:
     _smoke["job"] = start_pipeline(tmp, TINY, _smoke["uri"])
 
 
+def pytest_itemcollected(item):
+    """The tests that read the shared smoke store form one group: with pytest-xdist's ``--dist loadgroup``
+    (``make test``) they all run in one worker, so the store's pipeline runs once."""
+    if "smoke_store" in getattr(item, "fixturenames", ()):
+        item.add_marker(pytest.mark.xdist_group("smoke_store"))
+
+
 @pytest.hookimpl(trylast=True)  # after -k/-m deselection: start the run only for tests that will run
 def pytest_collection_modifyitems(config, items):
     """When a selected test reads the shared smoke store, start its pipeline run now, in the background,
     and move those tests to the end of the session: the run (one thread) overlaps every other test instead
-    of the session waiting for it (CI has two cores). The tests keep their order among themselves."""
+    of the session waiting for it (CI has two cores). The tests keep their order among themselves. In an
+    xdist worker nothing starts here: every worker collects every test, and only the one handed the group
+    needs the run, which ``smoke_store`` then starts."""
     readers = [item for item in items if "smoke_store" in getattr(item, "fixturenames", ())]
-    if not readers or config.option.collectonly:
+    if not readers or config.option.collectonly or hasattr(config, "workerinput"):
         return
     items[:] = [item for item in items if item not in readers] + readers
     tmp = Path(tempfile.mkdtemp(prefix="smoke_run_"))
