@@ -159,14 +159,22 @@ class SearchGrids:
 
     @classmethod
     def from_cfg(cls, grids) -> SearchGrids:
-        unknown = set(grids.logic_plus) - set(LogicPlusParams.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"eval.baseline_grids.logic_plus: unknown parameters {sorted(unknown)}; have "
-                             f"{sorted(LogicPlusParams.__dataclass_fields__)}")
         values = lambda xs: tuple(float(x) for x in xs)  # noqa: E731
         return cls(values(grids.couple_tolerance), values(grids.logic_iou), values(grids.prior_owner),
-                   values(grids.prior_couple), {k: values(v) for k, v in grids.logic_plus.items()},
+                   values(grids.prior_couple),
+                   {k: values(grids.logic_plus[k]) for k in logic_plus_search_order(grids.logic_plus)},
                    int(grids.logic_plus_rounds))
+
+
+def logic_plus_search_order(names) -> list[str]:
+    """``names`` in ``LogicPlusParams``' field order, the order ``fit_logic_plus`` visits them in whatever order a
+    grid lists them: a coordinate search depends on its order, and the cache key reads the config with sorted keys,
+    so two orders of the YAML must fit the same rule. A name that is no field is an error."""
+    order = [f.name for f in fields(LogicPlusParams) if f.name in names]
+    if unknown := sorted(set(names) - set(order)):
+        raise ValueError(f"eval.baseline_grids.logic_plus: {unknown} are not LogicPlusParams fields "
+                         f"(expected some of {[f.name for f in fields(LogicPlusParams)]})")
+    return order
 
 
 @dataclass
@@ -368,13 +376,9 @@ def fit_logic(images: list[TrainImage], couple_rule: CoupleRule, thresholds: Seq
 
 def fit_logic_plus(images: list[TrainImage], couple_rule: CoupleRule, grid: dict[str, Sequence[float]],
                    rounds: int) -> LogicPlus:
-    """Robust statistics of the true pairs, then coordinate-wise grid search of the gates and weights, visited in
-    ``LogicPlusParams``' field order whatever order ``grid`` lists them in: a coordinate search depends on its order,
-    and the cache key reads the config with sorted keys, so two orders of the YAML must fit the same rule."""
-    order = [f.name for f in fields(LogicPlusParams) if f.name in grid]
-    if unknown := sorted(set(grid) - set(order)):
-        raise ValueError(f"eval.baseline_grids.logic_plus: {unknown} are not LogicPlusParams fields "
-                         f"(expected some of {[f.name for f in fields(LogicPlusParams)]})")
+    """Robust statistics of the true pairs, then coordinate-wise grid search of the gates and weights
+    (``logic_plus_search_order``)."""
+    order = logic_plus_search_order(grid)
     feats = [PairFeatures.of(im.obj) for im in images]
     ratio_logs, size_logs = [], []
     for im, f in zip(images, feats, strict=True):

@@ -20,10 +20,14 @@ def _start_smoke(tmp: Path) -> None:
     _smoke["job"] = start_pipeline(tmp, TINY, _smoke["uri"])
 
 
+def _reads_smoke_store(item) -> bool:
+    return "smoke_store" in getattr(item, "fixturenames", ())
+
+
 def pytest_itemcollected(item):
     """The tests that read the shared smoke store form one group: with pytest-xdist's ``--dist loadgroup``
     (``make test``) they all run in one worker, so the store's pipeline runs once."""
-    if "smoke_store" in getattr(item, "fixturenames", ()):
+    if _reads_smoke_store(item):
         item.add_marker(pytest.mark.xdist_group("smoke_store"))
 
 
@@ -34,7 +38,7 @@ def pytest_collection_modifyitems(config, items):
     of the session waiting for it (CI has two cores). The tests keep their order among themselves. In an
     xdist worker nothing starts here: every worker collects every test, and only the one handed the group
     needs the run, which ``smoke_store`` then starts."""
-    readers = [item for item in items if "smoke_store" in getattr(item, "fixturenames", ())]
+    readers = [item for item in items if _reads_smoke_store(item)]
     if not readers or config.option.collectonly or hasattr(config, "workerinput"):
         return
     items[:] = [item for item in items if item not in readers] + readers
