@@ -8,7 +8,6 @@ from __future__ import annotations
 import copy
 import functools
 import os
-import socket
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -20,6 +19,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+from tests.ports import address_in_use, free_port
 from tests.sqlite_store import fresh_store, fresh_store_for_uri
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,12 +47,6 @@ def _composed(overrides: tuple[str, ...]) -> dict:
             return OmegaConf.to_container(cfg, resolve=True)
     finally:
         GlobalHydra.instance().clear()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def artifacts_beside_store(uri: str, artifacts: Path, experiment: str = "deepword") -> None:
@@ -119,29 +113,41 @@ class MlflowServer:
     also stops its web workers."""
 
     def __init__(self, tmp: Path, command: str = "server", backend_uri: str | None = None):
+        self.tmp, self.command = tmp, command
+        self.backend_uri = backend_uri or fresh_store(tmp / "server.db")
+        self.log = None
+        self._start()
+
+    def _start(self) -> None:
         self.port = free_port()
         self.uri = f"http://127.0.0.1:{self.port}"
-        self.backend_uri = backend_uri or fresh_store(tmp / "server.db")
         exe = Path(sys.executable).parent / "mlflow"
-        args = [str(exe), command, "--host", "127.0.0.1", "--port", str(self.port),
+        args = [str(exe), self.command, "--host", "127.0.0.1", "--port", str(self.port),
                 "--backend-store-uri", self.backend_uri, "--workers", "1"]
-        if command == "server":
-            args += ["--serve-artifacts", "--artifacts-destination", str(tmp / "artifacts")]
-        self.log = (tmp / f"mlflow_{command}.log").open("w")
-        self.proc = subprocess.Popen(args, cwd=tmp, stdout=self.log, stderr=subprocess.STDOUT,
+        if self.command == "server":
+            args += ["--serve-artifacts", "--artifacts-destination", str(self.tmp / "artifacts")]
+        if self.log is not None:
+            self.log.close()
+        self.log = (self.tmp / f"mlflow_{self.command}.log").open("w")
+        self.proc = subprocess.Popen(args, cwd=self.tmp, stdout=self.log, stderr=subprocess.STDOUT,
                                      start_new_session=True)
 
     def wait_ready(self, timeout: float = 120) -> None:
         import time
         import urllib.request
 
-        deadline = time.monotonic() + timeout
+        deadline, restarts = time.monotonic() + timeout, 0
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"mlflow exited with {self.proc.returncode}: {Path(self.log.name).read_text()[-3000:]}")
+                log = Path(self.log.name).read_text()
+                if address_in_use(log) and restarts < 3:  # another test's server took the port first
+                    restarts += 1
+                    self._start()
+                    continue
+                raise RuntimeError(f"mlflow exited with {self.proc.returncode}: {log[-3000:]}")
             try:
                 with urllib.request.urlopen(self.uri + "/health", timeout=2) as r:
-                    if r.status == 200:
+                    if r.status == 200 and self.proc.poll() is None:  # ours answers, not another that holds the port
                         return
             except OSError:
                 time.sleep(0.5)

@@ -16,7 +16,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from tests.experiments.pipeline_runs import free_port
+from tests.ports import address_in_use, free_port
 
 UNPRIVILEGED_USER = "nobody"
 DATABASE = "mlflow"
@@ -69,8 +69,15 @@ class PostgresCluster:
     def start(self) -> PostgresCluster:
         # --no-sync and fsync=off: a test database that is thrown away need not survive a power cut.
         self._run("initdb", "-D", str(self.data), "-U", ROLE, "--auth=trust", "-E", "UTF8", "--no-sync")
-        options = f"-h 127.0.0.1 -p {self.port} -k {self.root} -c fsync=off -c full_page_writes=off"
-        self._run("pg_ctl", "-D", str(self.data), "-o", options, "-l", str(self.log), "-w", "-t", "60", "start")
+        for attempt in range(4):
+            options = f"-h 127.0.0.1 -p {self.port} -k {self.root} -c fsync=off -c full_page_writes=off"
+            try:
+                self._run("pg_ctl", "-D", str(self.data), "-o", options, "-l", str(self.log), "-w", "-t", "60", "start")
+                break
+            except RuntimeError as error:  # another test's server took the port first: take another
+                if attempt == 3 or not address_in_use(str(error)):
+                    raise
+                self.port = free_port()
         self.started = True
         self._run("createdb", "-h", "127.0.0.1", "-p", str(self.port), "-U", ROLE, DATABASE)
         return self

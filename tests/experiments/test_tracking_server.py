@@ -9,8 +9,9 @@ import sys
 
 import pytest
 
-from tests.experiments.pipeline_runs import REPO, MlflowServer, free_port, run_pipeline
+from tests.experiments.pipeline_runs import REPO, MlflowServer, run_pipeline
 from tests.experiments.postgres_cluster import PostgresCluster, find_bin_dir
+from tests.ports import refused_port
 
 pytestmark = pytest.mark.slow
 
@@ -81,10 +82,11 @@ def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_serve
 
 
 def test_unreachable_server_fails_before_any_stage(tmp_path):
-    port = free_port()
-    proc = subprocess.run([sys.executable, "-m", "pipeline", "profile=smoke", "tracking=server",
-                           f"tracking.uri=http://127.0.0.1:{port}", f"pipeline.cache_dir={tmp_path / 'cache'}",
-                           f"hydra.run.dir={tmp_path / 'run'}"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    with refused_port() as port:
+        proc = subprocess.run([sys.executable, "-m", "pipeline", "profile=smoke", "tracking=server",
+                               f"tracking.uri=http://127.0.0.1:{port}", f"pipeline.cache_dir={tmp_path / 'cache'}",
+                               f"hydra.run.dir={tmp_path / 'run'}"], cwd=REPO, capture_output=True, text=True,
+                              timeout=120)
     assert proc.returncode == 1
     assert "is not reachable" in proc.stderr and "no stage was run" in proc.stderr
     assert not (tmp_path / "cache" / "data").exists()

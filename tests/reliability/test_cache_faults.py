@@ -7,19 +7,13 @@ from __future__ import annotations
 import errno
 import json
 import os
-import socket
 import time
 
 import pytest
 
 from pipeline.errors import PipelineError
+from tests.ports import refused_port
 from tests.reliability.harness import complete_entries, run_in_process
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def leftovers(cache, stage) -> list[str]:
@@ -82,8 +76,8 @@ def test_cache_dir_that_cannot_be_created_fails_with_clear_error(tmp_path, tiny,
 def test_unreachable_tracking_server_fails_fast_before_any_stage(tmp_path, tiny):
     cache = tmp_path / "cache"
     start = time.perf_counter()
-    with pytest.raises(PipelineError, match="not reachable.*no stage was run"):
-        run_in_process(tiny, cache, f"http://127.0.0.1:{free_port()}", "tracking=server")
+    with refused_port() as port, pytest.raises(PipelineError, match="not reachable.*no stage was run"):
+        run_in_process(tiny, cache, f"http://127.0.0.1:{port}", "tracking=server")
     assert time.perf_counter() - start < 15
     assert not cache.exists() or all(complete_entries(cache, s) == [] for s in ("data", "priors"))
 

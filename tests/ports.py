@@ -1,0 +1,31 @@
+"""Ports on 127.0.0.1 for the tests that start servers (MLflow, PostgreSQL) or need a server that is not there.
+``make test`` runs two tests at once (pytest-xdist), so a port that was free a moment ago may be another test's by
+the time a server binds it."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+
+
+def free_port() -> int:
+    """A port on 127.0.0.1 that was free a moment ago. Free, not reserved: a server started on it can lose it to
+    another test's server (pytest-xdist runs two tests at once), so the servers here retry on "address in use"."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def refused_port():
+    """A port on 127.0.0.1 that refuses every connection while the block runs: bound without ``SO_REUSEADDR`` and
+    never listening, so no server of another test can take it (a port from ``free_port`` could be)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
+
+
+def address_in_use(log: str) -> bool:
+    """Whether a server's log says it could not bind its port (as uvicorn, which ``mlflow server`` and ``mlflow ui``
+    run on, and PostgreSQL say it)."""
+    return "address already in use" in log.lower()
