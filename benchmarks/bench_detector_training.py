@@ -1,6 +1,7 @@
 """Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
-against bf16 autocast, channels_last, and both, in the same process on the same batches; the training loader's
-time per item and its share of an epoch beside the fastest step; and the relation
+against bf16 autocast, channels_last, and both, in the same process on the same batches; the AdamW and
+weight-average updates after each step, torch's per-tensor way against the stage's fused and multi-tensor one;
+the training loader's time per item and its share of an epoch beside the fastest step; and the relation
 network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
 against fp32.
 
@@ -114,11 +115,55 @@ def main(argv: list[str] | None = None) -> None:
         median = statistics.median(ts)
         print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
     fastest = min(statistics.median(ts) for ts in times.values()) / args.batch
+    update_costs(det, fastest * args.batch, max(20, 4 * args.steps))
     loader_share(det, fastest, args.steps)
     if not native_bf16:
         print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
         return
     relation_step_ratio(args.steps)
+
+
+def update_costs(det: dict, step_seconds: float, rounds: int) -> None:
+    """What follows every training step of the detector, on its parameters: the AdamW update and the weight
+    average's (``detector.ema_decay``), each the way torch and Lightning do it by default (a few ops per tensor,
+    one tensor after another) against the way the detector stage does it (fused AdamW, one multi-tensor lerp for
+    the average), interleaved; with their share of the fastest step above, which does not include them."""
+    import torch
+    from torch.optim.swa_utils import AveragedModel, get_ema_avg_fn, get_ema_multi_avg_fn
+
+    from stages.detector.model import build_centernet, model_config
+
+    torch.manual_seed(0)
+    net = build_centernet(model_config(det))
+    for p in net.parameters():
+        p.grad = torch.randn_like(p)
+    decay = float(det["ema_decay"]) or 0.998
+    per_tensor = {"AdamW": torch.optim.AdamW(net.parameters(), lr=1e-4, foreach=False).step,
+                  "weight average": AveragedModel(net, avg_fn=get_ema_avg_fn(decay), use_buffers=True)}
+    grouped = {"AdamW": torch.optim.AdamW(net.parameters(), lr=1e-4, fused=True).step,
+               "weight average": AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)}
+    for averaged in (per_tensor["weight average"], grouped["weight average"]):
+        averaged.update_parameters(net)  # the first update copies
+    calls = {}
+    for kind, (slow, fast) in {k: (per_tensor[k], grouped[k]) for k in per_tensor}.items():
+        for label, update in (("per tensor", slow), ("stage", fast)):
+            calls[kind, label] = update if kind == "AdamW" else (lambda m=update: m.update_parameters(net))
+
+    def run(name) -> float:
+        start = time.perf_counter()
+        calls[name]()
+        return time.perf_counter() - start
+
+    times = interleaved_times(run, list(calls), rounds)
+    tensors = len(list(net.parameters()))
+    print(f"\nupdate after each step ({tensors} parameter tensors), median of {rounds} interleaved updates")
+    print(f"{'update':<30} {'per tensor ms':>13} {'stage ms':>9} {'ratio':>6}  share of a step, per tensor -> stage")
+    for kind in per_tensor:
+        slow, fast = statistics.median(times[kind, "per tensor"]), statistics.median(times[kind, "stage"])
+        label = "fused" if kind == "AdamW" else "multi-tensor"
+        share_slow, share_fast = (100 * t / (step_seconds + t) for t in (slow, fast))
+        print(f"{kind + ' (' + label + ')':<30} {1000 * slow:13.2f} {1000 * fast:9.2f} {slow / fast:5.1f}x  "
+              f"{share_slow:.0f}% -> {share_fast:.0f}%")
 
 
 def synthetic_scene(width: int, height: int, rng: np.random.Generator, objects: int = 12):

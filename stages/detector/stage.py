@@ -121,7 +121,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
         accelerator=trainer_cfg.get("accelerator", "auto"), devices=trainer_cfg.get("devices", "auto"),
         strategy=trainer_cfg.get("strategy", "auto"), num_nodes=trainer_cfg.get("num_nodes", 1),
         precision=precision, logger=loggers,
-        callbacks=[*weight_averaging(float(det.get("ema_decay", 0.0))), checkpoint, latest,
+        callbacks=[*weight_averaging(float(det.get("ema_decay", 0.0)), multi_tensor=True), checkpoint, latest,
                    CloseMosaic(det["augment"].get("mosaic_close_epochs", 0)), *lightning_progress("detector")],
         default_root_dir=out_dir, enable_progress_bar=True, log_every_n_steps=det["log_every_n_steps"],
         num_sanity_val_steps=0)

@@ -50,20 +50,21 @@ class RecordsWeights(PeakThenWorse):
         self.history.append(self.layer.weight.detach().clone())
 
 
-def test_weight_averaging_checkpoints_hold_the_moving_average_of_every_step(tmp_path):
-    assert weight_averaging(0.0) == []
+@pytest.mark.parametrize("multi_tensor", [False, True])
+def test_weight_averaging_checkpoints_hold_the_moving_average_of_every_step(tmp_path, multi_tensor):
+    assert weight_averaging(0.0, multi_tensor) == []
     with pytest.raises(ValueError, match="decay"):
-        weight_averaging(1.0)
+        weight_averaging(1.0, multi_tensor)
     torch.manual_seed(0)
     loader = DataLoader(TensorDataset(torch.randn(6, 2)), batch_size=2)
     best, latest = best_and_latest(tmp_path, "val/score", "max")
     module = RecordsWeights()
-    trainer = L.Trainer(max_epochs=2, callbacks=[*weight_averaging(0.5), best, latest], logger=False,
+    trainer = L.Trainer(max_epochs=2, callbacks=[*weight_averaging(0.75, multi_tensor), best, latest], logger=False,
                         enable_progress_bar=False, enable_model_summary=False, accelerator="cpu", default_root_dir=tmp_path)
     trainer.fit(module, loader, loader)
-    expected = module.history[0]  # the first update copies, every later one is 0.5 x average + 0.5 x weights
+    expected = module.history[0]  # the first update copies, every later one is 0.75 x average + 0.25 x weights
     for weights in module.history[1:]:
-        expected = 0.5 * expected + 0.5 * weights
+        expected = 0.75 * expected + 0.25 * weights
     saved = torch.load(tmp_path / "last.ckpt", weights_only=True)["state_dict"]["layer.weight"]
     assert len(module.history) == 6 and not torch.allclose(saved, module.history[-1])
     assert torch.allclose(saved, expected)
