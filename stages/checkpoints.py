@@ -32,8 +32,8 @@ def weight_averaging(decay: float, multi_tensor: bool = False) -> list:
 
     ``multi_tensor``: one ``torch._foreach_lerp_`` over all the tensors a step (torch's ``get_ema_multi_avg_fn``)
     instead of ``EMAWeightAveraging``'s update of one tensor after another: the same average, rounded differently,
-    at a sixth of the cost on the detector's 148 tensors (~1.7 ms against ~11 ms a step on 2 cores,
-    ``make bench``). The relation stage keeps the per-tensor update: its ten-dataset comparison was measured with
+    at 2.5-6x less cost on the detector's 148 tensors (~2 ms against 6-11 ms a step on 2 cores; ``make bench``
+    prints both). The relation stage keeps the per-tensor update: its ten-dataset comparison was measured with
     it, and the update is a small part of its steps."""
     if not 0 <= decay < 1:
         raise ValueError(f"weight averaging: decay must be in [0, 1), got {decay}")

@@ -106,9 +106,9 @@ class CenterNetModule(L.LightningModule):
         self.log("val/ap50", float(np.mean([values[f"val/ap50.{c}"] for c in CLASS_NAMES])), prog_bar=True)
 
     def configure_optimizers(self):
-        # fused: the whole update in one kernel (torch >= 2.4 on CPU, CUDA), not a dozen ops per tensor: ~1.5 ms
-        # against ~11 ms a step for the detector's 82 parameter tensors on 2 cores, the same algorithm rounded
-        # differently (``make bench``)
+        # fused: the whole update in one kernel (torch >= 2.4 on CPU, CUDA), not a dozen ops per tensor: ~2 ms
+        # against 7-11 ms a step for the detector's 82 parameter tensors on 2 cores, the same algorithm rounded
+        # differently (``make bench`` prints both)
         opt = torch.optim.AdamW(self.parameters(), lr=self.optim_cfg["lr"], weight_decay=self.optim_cfg["weight_decay"],
                                 fused=True)
         total = max(1, int(self.trainer.estimated_stepping_batches))
