@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import statistics
 import time
 
@@ -138,16 +139,14 @@ def update_costs(det: dict, step_seconds: float, rounds: int) -> None:
     for p in net.parameters():
         p.grad = torch.randn_like(p)
     decay = float(det["ema_decay"]) or 0.998
-    per_tensor = {"AdamW": torch.optim.AdamW(net.parameters(), lr=1e-4, foreach=False).step,
-                  "weight average": AveragedModel(net, avg_fn=get_ema_avg_fn(decay), use_buffers=True)}
-    grouped = {"AdamW": torch.optim.AdamW(net.parameters(), lr=1e-4, fused=True).step,
-               "weight average": AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)}
-    for averaged in (per_tensor["weight average"], grouped["weight average"]):
+    # (kind, way) -> the update: AdamW's step, or the average's update from the network's weights
+    calls = {("AdamW", "per tensor"): torch.optim.AdamW(net.parameters(), lr=1e-4, foreach=False).step,
+             ("AdamW", "stage"): torch.optim.AdamW(net.parameters(), lr=1e-4, fused=True).step}
+    for way, averaging in (("per tensor", {"avg_fn": get_ema_avg_fn(decay)}),
+                           ("stage", {"multi_avg_fn": get_ema_multi_avg_fn(decay)})):
+        averaged = AveragedModel(net, use_buffers=True, **averaging)
         averaged.update_parameters(net)  # the first update copies
-    calls = {}
-    for kind, (slow, fast) in {k: (per_tensor[k], grouped[k]) for k in per_tensor}.items():
-        for label, update in (("per tensor", slow), ("stage", fast)):
-            calls[kind, label] = update if kind == "AdamW" else (lambda m=update: m.update_parameters(net))
+        calls["weight average", way] = functools.partial(averaged.update_parameters, net)
 
     def run(name) -> float:
         start = time.perf_counter()
@@ -158,7 +157,7 @@ def update_costs(det: dict, step_seconds: float, rounds: int) -> None:
     tensors = len(list(net.parameters()))
     print(f"\nupdate after each step ({tensors} parameter tensors), median of {rounds} interleaved updates")
     print(f"{'update':<30} {'per tensor ms':>13} {'stage ms':>9} {'ratio':>6}  share of a step, per tensor -> stage")
-    for kind in per_tensor:
+    for kind in ("AdamW", "weight average"):
         slow, fast = statistics.median(times[kind, "per tensor"]), statistics.median(times[kind, "stage"])
         label = "fused" if kind == "AdamW" else "multi-tensor"
         share_slow, share_fast = (100 * t / (step_seconds + t) for t in (slow, fast))
