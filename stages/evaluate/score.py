@@ -7,6 +7,9 @@ All its images are scored, split into easy / hard / mixed by ``word_format.diffi
 missing from the predictions counts as predicted with no relations; a prediction for an image the
 dataset does not have, or made at another resolution (its width/height differ from the ground truth's:
 its boxes would be in other pixel units), is an error. Bad input exits with code 2 and a file:line:field message.
+A subset with no image (a dataset with no easy image, say) has no scores: the table says so (``easy: no images``)
+and the JSON lists it under ``empty_subsets``, leaving it out of ``results``, ``relation_oracle`` and
+``pair_errors`` (its §7 metrics would read 100: nothing to find and nothing found).
 Beside the predictions' row, ``relation_oracle`` scores the ground truth's relations on the predicted boxes: the
 ceiling those boxes leave any relation model (``stages.evaluate.pair_errors``).
 
@@ -71,14 +74,17 @@ def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, s
     by_image = {r.image: r for r in gts}
     preds = load_predictions(pred_path, root, by_image)
     subsets = {s: [by_image[i] for i in images] for s, images in difficulty_subsets(gts, seed, max_easy_vehicles).items()}
+    empty = [s for s, recs in subsets.items() if not recs]
+    sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
+             for s, recs in subsets.items()}
+    subsets = {s: recs for s, recs in subsets.items() if recs}  # an empty subset has no scores, not 100s
     results = {s: score_records(recs, preds, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
     errors = {s: pair_errors_records(recs, preds, min_box_px, match_iou).as_dict() for s, recs in subsets.items()}
     oracle = {image: relation_oracle(by_image[image], rec, match_iou) for image, rec in preds.items()}
     ceiling = {s: score_records(recs, oracle, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
-    sizes = {s: {"images": len(recs), "wheels": sum(len(evaluated_wheel_ids(r, min_box_px)) for r in recs)}
-             for s, recs in subsets.items()}
     missing = len(set(by_image) - set(preds))
-    out = {"results": results, RELATION_ORACLE: ceiling, "pair_errors": errors, "sizes": sizes, "missing_images": missing,
+    out = {"results": results, RELATION_ORACLE: ceiling, "pair_errors": errors, "sizes": sizes, "empty_subsets": empty,
+           "missing_images": missing,
            "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
            "match_iou": match_iou}
     if detections_path is not None:
@@ -135,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     notes = [f"{out['missing_images']} ground-truth images had no prediction (scored as no relations)"]
+    notes += [f"{s}: no images, so no scores (its columns show -)" for s in out["empty_subsets"]]
     print(render_markdown({"predictions": {args.name: out["results"], RELATION_ORACLE: out[RELATION_ORACLE]}},
                           out["sizes"], notes,
                           f"Scores of {args.pred} against {args.gt}",

@@ -30,6 +30,23 @@ def test_ground_truth_as_predictions_scores_100(data, tmp_path, capsys):
     assert res["sizes"]["easy"]["images"] + res["sizes"]["hard"]["images"] == 20
 
 
+def test_an_empty_subset_says_so_instead_of_scoring_100(data, tmp_path, capsys):
+    # every image has a vehicle, so with at most 0 vehicles an easy image there is none
+    recs = read_records(data / "labels.jsonl")
+    write_records(tmp_path / "pred.jsonl", [replace(r, relations=[], wheel_pairs=[]) for r in recs])
+    out = tmp_path / "scores.json"
+    assert main(["--gt", str(data), "--pred", str(tmp_path / "pred.jsonl"), "--json", str(out),
+                 "--max-easy-vehicles", "0"]) == 0
+    printed = capsys.readouterr().out
+    assert "easy: no images" in printed
+    assert "| submitted | - | 0.00 | 0.00 |" in printed and "| relation_oracle | - | 100.00 | 100.00 |" in printed
+    res = json.loads(out.read_text())
+    assert res["empty_subsets"] == ["easy"] and res["sizes"]["easy"] == {"images": 0, "wheels": 0}
+    for key in ("results", "relation_oracle", "pair_errors"):
+        assert "easy" not in res[key] and {"hard", "mixed"} <= set(res[key])
+    assert res["results"]["hard"]["pair_f1"] == 0.0  # no relations predicted: the other subsets are scored as ever
+
+
 def test_missing_images_count_as_no_relations(data, tmp_path):
     recs = read_records(data / "labels.jsonl")
     write_records(tmp_path / "pred.jsonl", recs[:5])
