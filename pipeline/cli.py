@@ -1,5 +1,5 @@
-"""The command line: ``python -m pipeline`` / ``deepword`` with Hydra overrides, e.g.
-``deepword profile=smoke pipeline.until=data``. Thin: composes the config and calls ``run_pipeline``.
+"""The command line: ``python -m pipeline`` / ``deepword run`` with Hydra overrides, e.g.
+``deepword run profile=smoke pipeline.until=data`` (or ``python -m pipeline profile=smoke pipeline.until=data``). Thin: composes the config and calls ``run_pipeline``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """Training precision of the Lightning stages, decided at run time from what the machine can do.
 
-``trainer.precision: auto`` (the CPU and GPU defaults) means bf16 mixed precision where the hardware runs
-bfloat16 natively, fp32 elsewhere. On a CPU "natively" means the ``avx512_bf16`` or ``amx_bf16``
+``trainer.precision: auto`` (the CPU default, ``trainer=cpu``) means bf16 mixed precision where the hardware
+runs bfloat16 natively, fp32 elsewhere. ``trainer=gpu`` and ``trainer=ddp`` set ``32-true`` (fp32); on a GPU,
+``trainer.precision=auto`` trains in bf16 where the GPU supports it and ``trainer.precision=bf16-mixed`` asks for
+it outright (any value other than ``auto`` is passed to Lightning as it is). On a CPU "natively" means the ``avx512_bf16`` or ``amx_bf16``
 instructions: oneDNN emulates bf16 on older AVX-512 CPUs (torch's ``_is_mkldnn_bf16_supported`` says
 yes there) but that is slower than fp32, so torch's check alone would slow those machines down.
 Measured on an ``avx512_bf16`` CPU (detector, batch 8, 320x256, 2 threads): bf16 autocast 1.8x the fp32
