@@ -1,7 +1,8 @@
 """Progress output that suits where it goes: a live bar on a terminal, plain lines in a log file or CI
 (a bar redrawn with carriage returns becomes thousands of fragments on one line there).
 
-``progress_lines`` wraps a loop; ``stages.lightning_logs.lightning_progress`` gives a Trainer's callbacks."""
+``progress_lines`` wraps a loop; ``ProgressCounter`` follows work reported as (done, total) by a callback;
+``stages.lightning_logs.lightning_progress`` gives a Trainer's callbacks."""
 
 from __future__ import annotations
 
@@ -33,3 +34,36 @@ def progress_lines(items: Iterable, total: int, desc: str, unit: str, stream=Non
         done += 1
         if done % step == 0 or done == total:
             print(f"{desc}: {done}/{total} {unit}s ({time.perf_counter() - start:.0f} s)", file=out, flush=True)
+
+
+class ProgressCounter:
+    """Progress reported by a callback, ``update(done, total)``, as ``progress_lines`` shows a loop: tqdm's bar on a
+    terminal, else a line each time another ``LINE_FRACTION`` of ``total`` is done (and one at the end)."""
+
+    def __init__(self, desc: str, unit: str, stream=None):
+        self.desc, self.unit, self.stream = desc, unit, stream
+        self.start = time.perf_counter()
+        self.printed = 0   # the count of the last line printed
+        self.bar = None
+        if on_terminal(stream):
+            from tqdm import tqdm
+
+            self.bar = tqdm(desc=desc, unit=unit, file=stream, leave=False, mininterval=5.0)
+
+    def __call__(self, done: int, total: int) -> None:
+        self.update(done, total)
+
+    def update(self, done: int, total: int) -> None:
+        if self.bar is not None:
+            self.bar.total, self.bar.n = total, done
+            self.bar.refresh()
+            return
+        step = max(1, int(total * LINE_FRACTION))
+        if done // step > self.printed // step or (done == total and self.printed != done):
+            self.printed = done
+            print(f"{self.desc}: {done}/{total} {self.unit}s ({time.perf_counter() - self.start:.0f} s)",
+                  file=self.stream or sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()

@@ -85,8 +85,6 @@ def tuning_records(dataset: Path, split: str | None) -> tuple[Path, list[Record]
 
 def tune(args) -> dict:
     """Run the search and write the tuned bundle; returns its ``tuned`` entry."""
-    from tqdm import tqdm
-
     from stages.evaluate.fallback import batch_with_fallback
     from stages.export.operating_point import (
         OperatingPoint,
@@ -105,6 +103,7 @@ def tune(args) -> dict:
         end_to_end_method,
         read_bundle,
     )
+    from stages.progress import ProgressCounter, progress_lines
     from stages.word_format import load_image
 
     export = resolve_dirs(args, need_detector=True)["export"]
@@ -131,17 +130,11 @@ def tune(args) -> dict:
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     pixels = {}
     detections = []
-    for truth in tqdm(truths, desc="detector", unit="image", file=sys.stderr, leave=False, mininterval=5.0):
+    # a bar on a terminal, plain lines in a log (stages/progress.py)
+    for truth in progress_lines(truths, len(truths), "detector", "image"):
         pixels[truth.image] = load_image(root, truth)
         detections.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
-    bar = tqdm(desc="relation model on subsets of the boxes", unit="subset", file=sys.stderr, leave=False,
-               mininterval=5.0)
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
+    progress = ProgressCounter("relation model on subsets of the boxes", "subset")
     relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), detections, lambda r: pixels[r.image],
                               progress=progress)
     pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
@@ -150,7 +143,7 @@ def tune(args) -> dict:
     print(f"searching {points} operating points by the pair_f1 of {name} ...", file=sys.stderr)
     chosen, seen = search_operating_point(truths, detections, method, len(classes), thresholds,
                                           [sides[c] for c in classes], min_box_px, match_iou)
-    bar.close()
+    progress.close()
     shipped_thresholds, shipped_sides = bundle_operating_point(bundle["detector"])
     before = OperatingPoint(shipped_thresholds or (detector.score_threshold,) * len(classes), shipped_sides)
     floor = OperatingPoint((detector.score_threshold,) * len(classes), (0.0,) * len(classes))

@@ -5,7 +5,7 @@ import io
 import torch
 
 from stages.lightning_logs import lightning_progress
-from stages.progress import on_terminal, progress_lines
+from stages.progress import ProgressCounter, on_terminal, progress_lines
 
 
 class FakeTerminal(io.StringIO):
@@ -21,6 +21,24 @@ def test_a_loop_prints_a_line_every_tenth_without_a_terminal_and_a_bar_on_one():
     terminal = FakeTerminal()
     assert on_terminal(terminal) and list(progress_lines(range(3), 3, "frames", "frame", terminal)) == [0, 1, 2]
     assert "\r" in terminal.getvalue()  # tqdm's live bar
+
+
+def test_progress_reported_by_a_callback_is_a_line_every_tenth_without_a_terminal_and_a_bar_on_one():
+    log = io.StringIO()
+    counter = ProgressCounter("subsets", "subset", log)
+    for done in range(1, 101, 3):   # batches of 3: the counts skip the tenths themselves
+        counter(done, 100)
+    counter(100, 100)
+    counter(100, 100)   # the end once
+    counter.close()
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue() and len(lines) == 10
+    assert lines[0].startswith("subsets: 10/100 subsets (") and lines[-1].startswith("subsets: 100/100 subsets (")
+    terminal = FakeTerminal()
+    counter = ProgressCounter("subsets", "subset", terminal)
+    counter(5, 10)
+    counter.close()
+    assert "\r" in terminal.getvalue()
 
 
 def test_training_without_a_terminal_prints_one_line_per_epoch():

@@ -39,7 +39,11 @@ def test_the_tuned_bundle_is_what_infer_keeps_detections_at(upstream, exported, 
     assert tune(args) == 0
     detector = OnnxDetector(out)
     assert detector.class_thresholds == (0.3, 0.3) and detector.class_min_sides == (0.0, 5.0)
-    assert "minimum sides {'vehicle': 0.0, 'wheel': 5.0}" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "minimum sides {'vehicle': 0.0, 'wheel': 5.0}" in printed.out
+    # stderr is no terminal here: progress is whole lines (stages/progress.py), not a bar redrawn with \r
+    assert "\r" not in printed.err and "detector: " in printed.err
+    assert any(line.startswith("relation model on subsets of the boxes: ") for line in printed.err.splitlines())
     assert tune(args[:-1] + ["wheel=6"]) == 0   # a bundle tune wrote may be replaced
     assert OnnxDetector(out).class_min_sides == (0.0, 6.0)
 
