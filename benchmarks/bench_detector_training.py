@@ -1,9 +1,13 @@
 """Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
 against bf16 autocast, channels_last, and both, in the same process on the same batches; the AdamW and
 weight-average updates after each step, torch's per-tensor way against the stage's fused and multi-tensor one;
-the training loader's time per item and its share of an epoch beside the fastest step; and the relation
+the training loader's time per item and its share of an epoch beside the fastest step; the relation
 network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
-against fp32.
+against fp32; and how close each step comes to the host's limit: the step's floating-point operations
+(forward and backward, counted by ``torch.utils.flop_counter``) per second of its median time, against the
+rate of a large matrix product timed in the same run in the same precision (the host's practical peak).
+A step far under the peak wants faster code (kernels, layouts, less overhead between them); one near it wants
+less work (a smaller network, fewer or smaller images).
 
     python -m benchmarks.bench_detector_training [--threads 2] [--steps 6] [--batch 8]
 
@@ -107,6 +111,9 @@ def main(argv: list[str] | None = None) -> None:
         return time.perf_counter() - start
 
     times = interleaved_times(step, list(variants), args.steps)
+    peaks = matmul_peaks(native_bf16)
+    step_flops = training_flops(lambda: detector_loss(state["fp32"][0](state["fp32"][2]), batch,
+                                                      det["regression"], DOWN_RATIO, det["loss"])[0])
 
     print(f"CPU native bf16: {native_bf16}; threads {args.threads}; batch {args.batch} at {width}x{height}; "
           f"median of {args.steps} interleaved steps")
@@ -115,13 +122,59 @@ def main(argv: list[str] | None = None) -> None:
     for name, ts in times.items():
         median = statistics.median(ts)
         print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
+    utilisation("detector", step_flops, {name: statistics.median(ts) for name, ts in times.items()}, peaks)
     fastest = min(statistics.median(ts) for ts in times.values()) / args.batch
     update_costs(det, fastest * args.batch, max(20, 4 * args.steps))
     loader_share(det, fastest, args.steps)
     if not native_bf16:
         print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
         return
-    relation_step_ratio(args.steps)
+    relation_step_ratio(args.steps, peaks)
+
+
+def matmul_peaks(native_bf16: bool, size: int = 2048, rounds: int = 5) -> dict[str, float]:
+    """FLOP/s of a size x size x size matrix product, fp32 and (where the CPU has it natively) bf16: the best of
+    ``rounds`` after a warm-up, the practical peak a training step is compared with."""
+    import torch
+
+    peaks = {}
+    for dtype_name, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16)):
+        if dtype_name == "bf16" and not native_bf16:
+            continue
+        a = torch.randn(size, size, dtype=dtype)
+        b = torch.randn(size, size, dtype=dtype)
+        a @ b
+        best = min(_timed(lambda a=a, b=b: a @ b) for _ in range(rounds))
+        peaks[dtype_name] = 2 * size ** 3 / best
+    print("host peak (matrix product " + f"{size}^3, best of {rounds}): "
+          + ", ".join(f"{name} {rate / 1e9:.0f} GFLOP/s" for name, rate in peaks.items()))
+    return peaks
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def training_flops(loss_fn) -> int:
+    """Floating-point operations of one forward and backward pass (``torch.utils.flop_counter``: matrix products
+    and convolutions, which are nearly all of a convolutional network's; elementwise work is not counted)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter:
+        loss_fn().backward()
+    return counter.get_total_flops()
+
+
+def utilisation(network: str, flops: int, median_seconds: dict[str, float], peaks: dict[str, float]) -> None:
+    """Achieved FLOP/s of each variant's median step against the peak of its precision."""
+    print(f"\n{network} step: {flops / 1e9:.2f} GFLOP (forward + backward); achieved against the host's peak")
+    print(f"{'variant':<22} {'GFLOP/s':>8} {'of peak':>8}")
+    for name, seconds in median_seconds.items():
+        precision = "bf16" if name.startswith("bf16") else "fp32"
+        rate = flops / seconds
+        print(f"{name:<22} {rate / 1e9:8.1f} {100 * rate / peaks[precision]:7.1f}%  ({precision} peak)")
 
 
 def update_costs(det: dict, step_seconds: float, rounds: int) -> None:
@@ -218,9 +271,9 @@ def loader_share(det: dict, step_seconds_per_image: float, rounds: int, items: i
         print(f"{name:<30} {1000 * loader:8.1f} {100 * share:28.0f}%")
 
 
-def relation_step_ratio(steps: int, images: int = 16) -> None:
+def relation_step_ratio(steps: int, peaks: dict[str, float], images: int = 16) -> None:
     """The relation stage's training step (default config, 16 images of the quick profile's object counts)
-    with the backbone in fp32 and in bf16, interleaved; prints graphs/s and the ratio."""
+    with the backbone in fp32 and in bf16, interleaved; prints graphs/s, the ratio and the share of the peak."""
     import torch
     from omegaconf import OmegaConf
 
@@ -266,6 +319,10 @@ def relation_step_ratio(steps: int, images: int = 16) -> None:
     for name, ts in times.items():
         median = statistics.median(ts)
         print(f"{name:<22} {1000 * median:8.0f} {images / median:9.1f} {fp32 / median:7.2f}x")
+    module = modules["fp32"][0]
+    flops = training_flops(lambda: module._loss(module(batch), batch)["loss"])
+    utilisation("relation", flops, {("bf16 backbone" if "bf16" in n else n): statistics.median(ts)
+                                    for n, ts in times.items()}, peaks)
 
 
 if __name__ == "__main__":
