@@ -5,6 +5,10 @@
     deepword infer ...                    relations with the exported ONNX models (stages.inference.infer)
     deepword tune --dataset ROOT --out DIR  the detector's operating point chosen on your labelled images
     deepword show ROOT                    Fig. 5-style contact sheet of a dataset (stages.data.show)
+    deepword import --from TOOL FILE --images DIR --out DATASET   labels from Label Studio, CVAT or COCO
+                                          into a WORD-style dataset (stages.labelling.importer)
+    deepword export-labels --to TOOL --pred FILE --out FILE       predictions as pre-annotations for
+                                          Label Studio or CVAT (stages.labelling.export)
 
 Each subcommand's module is imported only when it is chosen, so ``deepword infer`` never loads torch
 and ``deepword run`` keeps the engine's fast no-op path.
@@ -21,12 +25,14 @@ COMMANDS = {
     "infer": ("stages.inference.infer", "relations of images or a dataset with the exported ONNX models"),
     "tune": ("stages.inference.tune", "choose the bundle's detector operating point on your labelled images"),
     "show": ("stages.data.show", "contact sheet of a WORD-style dataset"),
+    "import": ("stages.labelling.importer", "labels from Label Studio, CVAT or COCO into a WORD-style dataset"),
+    "export-labels": ("stages.labelling.export", "predictions as pre-annotations for Label Studio or CVAT"),
 }
 
 
 def usage() -> str:
     lines = ["usage: deepword COMMAND [ARGS...]", "", "commands:"]
-    lines += [f"  {name:<6} {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += [f"  {name:<13} {help_}" for name, (_, help_) in COMMANDS.items()]
     return "\n".join(lines + ["", "deepword COMMAND --help shows a command's options."])
 
 
