@@ -121,7 +121,7 @@ def int8_accuracy_change(ds, out_dir: Path, records: list, graphs: list, min_box
 
 
 def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: int, lat) -> dict[str, float]:
-    """The issue's figures: the dynamic model on test images at their real object counts, batch 1 (one
+    """The latency figures: the dynamic model on test images at their real object counts, batch 1 (one
     image per call) and batch 10 (10 consecutive images padded to the largest of them), with
     ``lat.threads`` threads; PyTorch eager on the same feeds; the one-thread CPU time (the cost without
     the machine's other load). ``static_*``: the static model, every image padded to max_objects, as an
