@@ -83,7 +83,9 @@ def convert(tool: str, export_file: str | os.PathLike, images_dir: str | os.Path
     if problems:
         raise LabellingError(problems)
     if not records:
-        raise LabellingError(f"{export_file}: no annotated images to import")
+        # say why (e.g. tasks that hold only the model's predictions, not yet accepted or corrected)
+        why = "".join(f"; {note}" for note in notes)
+        raise LabellingError(f"{export_file}: no annotated images to import{why}")
     return records, sources, summarise(records, summary)
 
 
