@@ -3,6 +3,9 @@ by frame into train/val/test with easy/hard/mixed test subsets, and report docs/
 The ``shift_data`` stage builds the cross-domain benchmark's held-out test set (``shift.data``, a
 data-like config drawing only held-out families) the same way; its metrics are ``data.shift.test.*``.
 
+A data config with ``sources`` composes several (``data=adapt``: the generator's data and N images of a new
+domain's pool, docs/adapt.md; ``stages.data.compose``).
+
 Output directory: ``dataset.json`` (where the labels and images are), ``splits.json``, and for synthetic
 data ``labels.jsonl`` + ``images/``; ``artifacts/contact_sheet.png`` shows a few frames with their labels.
 """
@@ -31,6 +34,17 @@ def run_heldout(cfg, inputs: dict, out_dir: Path) -> dict[str, float]:
 
 
 def build_dataset(dcfg: dict, seed: int, out_dir: Path) -> dict[str, float]:
+    if dcfg.get("sources") is not None:   # several sources in one dataset (data=adapt): stages.data.compose
+        from stages.data.compose import build_sources
+
+        records, splits, metrics = build_sources(dcfg, seed, out_dir)
+        write_dataset_index(out_dir, out_dir, splits)
+        (out_dir / "artifacts").mkdir(exist_ok=True)
+        for name in dcfg["sources"]:   # a sheet per source: the first frames of each
+            own = [r for r in records if r.extra.get("data_source") == name]
+            if own:
+                frame_sheet(out_dir, own, SHEET_FRAMES, out_dir / "artifacts" / f"contact_sheet_{name}.png")
+        return metrics
     if dcfg["name"] == "synword":
         from stages.data.synword import generate
 

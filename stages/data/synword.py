@@ -192,24 +192,51 @@ def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Recor
 def generate(cfg: dict, seed: int, out_dir: Path, workers: int | None = None, progress: bool = True) -> list[Record]:
     """Generate ``cfg['frames']`` frames into ``out_dir`` (images/<camera>/<frame>.png); returns the records
     in frame, camera order. ``workers`` processes (default: all cores); 1 renders in this process."""
-    from stages.progress import progress_lines
-
-    DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
     n = int(cfg["frames"])
-    workers = max(1, min(int(workers or os.cpu_count() or 1), n))
-    frames = range(n)
+    with FrameWriter(cfg, seed, out_dir, workers, most=n) as writer:
+        results = writer.write(range(n), progress=progress)
+    return [r for recs in results for r in recs]
 
-    def shown(items):
-        return progress_lines(items, total=n, desc="synword frames", unit="frame") if progress else items
 
-    if workers == 1:
-        gen = FrameGenerator(cfg, seed)
-        results = [write_frame(gen, f, out_dir) for f in shown(frames)]
-    else:
-        ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg, seed, str(out_dir))) as pool:
+class FrameWriter:
+    """Renders and writes chosen frames of one config, in this process or a pool of ``workers`` processes kept
+    for the writer's life (the data stage's pool source asks for frames in several batches). ``write`` returns
+    each frame's kept records (>= 1 owner-member relation), in camera order, in the order the frames were asked for."""
+
+    def __init__(self, cfg: dict, seed: int, out_dir: Path, workers: int | None = None, most: int | None = None):
+        DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
+        self.cfg, self.seed, self.out_dir = cfg, int(seed), Path(out_dir)
+        self.workers = max(1, min(int(workers or os.cpu_count() or 1), most or 1 << 30))
+        self._gen: FrameGenerator | None = None
+        self._pool = None
+
+    def __enter__(self) -> FrameWriter:
+        if self.workers == 1:
+            self._gen = FrameGenerator(self.cfg, self.seed)
+        else:
+            ctx = mp.get_context("spawn")  # safe whatever threads the parent runs (MLflow, torch)
+            self._pool = ctx.Pool(self.workers, initializer=_init_worker,
+                                  initargs=(self.cfg, self.seed, str(self.out_dir)))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.terminate() if exc[0] is not None else self._pool.close()
+            self._pool.join()
+
+    def write(self, frames, progress: bool = True) -> list[list[Record]]:
+        from stages.progress import progress_lines
+
+        frames = [int(f) for f in frames]
+
+        def shown(items):
+            return progress_lines(items, total=len(frames), desc="synword frames", unit="frame") if progress else items
+
+        if self._gen is not None:
+            results = [write_frame(self._gen, f, self.out_dir) for f in shown(frames)]
+        else:
             # a chunk of one rig's frames: each process builds a rig's tables once
-            chunk = max(1, int(cfg["lens"]["frames_per_rig"]))
-            results = list(shown(pool.imap(_work, frames, chunksize=chunk)))
-    order = {c: i for i, c in enumerate(CAMERAS)}
-    return sorted((r for recs in results for r in recs), key=lambda r: (r.frame_id, order[r.camera]))
+            chunk = max(1, int(self.cfg["lens"]["frames_per_rig"]))
+            results = list(shown(self._pool.imap(_work, frames, chunksize=chunk)))
+        order = {c: i for i, c in enumerate(CAMERAS)}
+        return [sorted(recs, key=lambda r: order[r.camera]) for recs in results]
