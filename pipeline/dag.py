@@ -13,7 +13,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve"}
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,9 @@ class StageSpec:
     # In a launch of several processes (torchrun, srun): every rank calls the stage (it joins a process group,
     # e.g. DDP training), not rank 0 alone; only rank 0's outputs are kept (pipeline.ranks).
     every_rank: bool = False
+    # ``module:function`` called at plan time, before any stage runs, to resolve what the declared config only
+    # names (pipeline.keys.resolve_extras): e.g. a file to start from, whose content then joins the key.
+    resolve: str | None = None
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -54,6 +57,9 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
     if not isinstance(run, str) or run.count(":") != 1 or not all(run.split(":")):
         raise PipelineError(f"pipeline.stages.{name}.run: expected 'package.module:function', got {run!r}")
     module, function = run.split(":")
+    resolve = node.get("resolve")
+    if resolve is not None and (not isinstance(resolve, str) or resolve.count(":") != 1 or not all(resolve.split(":"))):
+        raise PipelineError(f"pipeline.stages.{name}.resolve: expected 'package.module:function', got {resolve!r}")
     config = _str_list(name, "config", node.get("config"))
     inputs = _str_list(name, "inputs", node.get("inputs"))
     optional = _str_list(name, "optional", node.get("optional"))
@@ -80,6 +86,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         optional=optional,
         dataset=None if node.get("dataset") is None else str(node.get("dataset")),
         every_rank=every_rank,
+        resolve=resolve,
     )
 
 

@@ -11,6 +11,7 @@ import importlib
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,7 +24,7 @@ from pipeline.cache import VERIFY_MODES, Cache, Entry, now_iso
 from pipeline.checks import check_values
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
-from pipeline.keys import key_parts, resolved_subtree
+from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
 from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
@@ -75,14 +76,18 @@ def _settings(cfg: DictConfig, launch_dir: Path) -> dict:
     }
 
 
+def _context(settings: dict) -> PlanContext:
+    return PlanContext(settings["cache_dir"], settings["uri"])
+
+
 def _plan(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfig, cache: Cache,
-          force: list[str], verify: str) -> list[StagePlan]:
+          force: list[str], verify: str, context: PlanContext) -> list[StagePlan]:
     keys: dict[str, str] = {}
     plans = []
     for name in selected:
         spec = specs[name]
         try:
-            parts = key_parts(spec, cfg, keys)
+            parts = key_parts(spec, cfg, keys, context)
         except OmegaConfBaseException as exc:
             raise PipelineError(f"stage '{name}': cannot resolve its config {list(spec.config)}: {exc}") from exc
         keys[name] = parts.key
@@ -111,12 +116,25 @@ def _check_metrics(stage: str, metrics) -> dict[str, float]:
     return out
 
 
-def _stage_cfg(cfg: DictConfig, spec: StageSpec) -> DictConfig:
-    """Only the declared keys, resolved (exactly what the key hashes), read-only."""
-    sub = OmegaConf.create(resolved_subtree(cfg, spec.config))
+def _stage_cfg(parts: KeyParts) -> DictConfig:
+    """Only the declared keys (and what the stage's resolve hook added), resolved: exactly what the key hashes,
+    read-only."""
+    sub = OmegaConf.create(parts.config)
     OmegaConf.set_readonly(sub, True)
     OmegaConf.set_struct(sub, True)
     return sub
+
+
+def _stage_inputs(spec: StageSpec, parts: KeyParts, outputs: dict[str, Path]) -> dict[str, Path]:
+    """The upstream outputs (an optional input may be left out) and the files the resolve hook named, whose
+    content must still be what the key holds."""
+    inputs = {i: outputs[i] for i in spec.inputs if i in outputs}
+    for name, path in parts.files.items():
+        if not Path(path).is_file() or file_digest(path) != parts.inputs[name]:
+            raise PipelineError(f"stage '{spec.name}': {name} file {path} changed or vanished since the plan; "
+                                "run again")
+        inputs[name] = Path(path)
+    return inputs
 
 
 def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
@@ -138,7 +156,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
             raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
         tracking.set_active((uri, run_id))
         try:
-            metrics = _check_metrics(spec.name, func(_stage_cfg(cfg, spec), inputs, tmp / "out"))
+            metrics = _check_metrics(spec.name, func(_stage_cfg(plan.parts), inputs, tmp / "out"))
         finally:
             tracking.set_active(None)
         seconds = time.perf_counter() - start
@@ -158,7 +176,6 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
                outputs: dict[str, Path], settings: dict, launch: LaunchFile) -> dict:
     name, key = plan.name, plan.key
-    inputs = {i: outputs[i] for i in spec.inputs if i in outputs}  # an optional input may be left out
     start = time.perf_counter()
     entry = plan.entry
     if not plan.hit:
@@ -169,8 +186,10 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                     plan.hit, plan.reason = True, "computed meanwhile by a concurrent pipeline"
             if entry is None:
                 _say(f"Running stage '{name}' ({plan.reason})")
+                inputs = _stage_inputs(spec, plan.parts, outputs)
                 run_id = tracker.create_run(
-                    name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"]}, parent_id
+                    name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"], **plan.parts.tags},
+                    parent_id
                 )
                 try:
                     entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"], launch)
@@ -185,7 +204,7 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
              else f"Stage '{name}': {plan.reason}, using it")
         run_id = tracker.create_run(
             name, {"cache": "hit", "cache_key": key, "stage": name, "computed_by_run": computed_by,
-                   **settings["run_tags"]}, parent_id
+                   **settings["run_tags"], **plan.parts.tags}, parent_id
         )
     else:
         run_id = computed_by
@@ -267,8 +286,10 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
         check_values(cfg, name, specs[name].checks)
     if settings["require_server"]:
         check_server(settings["uri"])
+    if in_process_tracking is None:  # decided now: a resolve hook may import MLflow while planning
+        in_process_tracking = "mlflow" in sys.modules
     cache = Cache(settings["cache_dir"])
-    plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"])
+    plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"], _context(settings))
     _say(format_plan(plans, str(cache.root), left_out))
     launch.start({p.name: p.key for p in plans})
     if rank.world_size > 1:
@@ -299,6 +320,8 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
     }
     choices = _hydra_choices()
     parent_tags.update({f"choice.{g}": o for g, o in choices.items()})
+    for plan in plans:  # the stages' resolve hooks' tags (e.g. what a stage started from) describe the run too
+        parent_tags.update(plan.parts.tags)
     # Every stage child run carries them too: a child row alone says which seed and code made it.
     settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
     parent_id = tracker.create_run(_run_name(cfg, overrides, choices), parent_tags)
@@ -385,8 +408,10 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     verify = settings["verify"]
     forced = set(settings["force"])
     keys: dict[str, str] = {}
+    parts: dict[str, KeyParts] = {}
     for name in selected:
-        keys[name] = key_parts(specs[name], cfg, keys).key
+        parts[name] = key_parts(specs[name], cfg, keys, _context(settings))
+        keys[name] = parts[name].key
     watch = _RankZeroWatch(rank, cache, keys)
     _say(f"{rank.described} (launch {rank.launch_id}): following rank 0, which alone writes the cache and MLflow")
     joined, skipped = [], []
@@ -410,7 +435,7 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
             _say(f"{rank.described}: stage '{name}' is in the cache, nothing to join")
             skipped.append(name)
             continue
-        inputs = {}
+        inputs = _stage_inputs(specs[name], parts[name], {})
         for i in specs[name].inputs:
             if i not in keys:
                 continue  # an optional input left out of this run
@@ -420,14 +445,14 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
                 time.sleep(POLL_SECONDS)
             inputs[i] = entry.out_dir
         _say(f"{rank.described}: joining stage '{name}' (rank 0 computes it)")
-        _join_stage(specs[name], cfg, inputs, computing, rank)
+        _join_stage(specs[name], parts[name], inputs, computing, rank)
         joined.append(name)
     _say(f"{rank.described}: done (joined {joined or 'no stage'}); rank 0 records the results")
     return {"rank": rank.index, "world_size": rank.world_size, "launch_id": rank.launch_id,
             "joined": joined, "skipped": skipped}
 
 
-def _join_stage(spec: StageSpec, cfg: DictConfig, inputs: dict[str, Path], computing: dict, rank: Rank) -> None:
+def _join_stage(spec: StageSpec, parts: KeyParts, inputs: dict[str, Path], computing: dict, rank: Rank) -> None:
     scratch = Path(tempfile.mkdtemp(prefix=f"pipeline-{spec.name}-rank{rank.index}-"))
     try:
         out = scratch / "out"
@@ -441,6 +466,6 @@ def _join_stage(spec: StageSpec, cfg: DictConfig, inputs: dict[str, Path], compu
         if func is None:
             raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
         tracking.set_active(None)  # only rank 0 logs
-        func(_stage_cfg(cfg, spec), inputs, out)
+        func(_stage_cfg(parts), inputs, out)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

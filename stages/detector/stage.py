@@ -85,6 +85,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     from stages.detector.model import build_centernet, model_config, save_detector
     from stages.detector.predict import predict_records
     from stages.detector.render import write_detection_grid
+    from stages.detector.warm_start import fine_tuning, load_start
+    from stages.init_source import INIT_INPUT
     from stages.lightning_logs import lightning_progress, route_lightning_logs
     from stages.loader_workers import loader_workers
     from stages.precision import BF16, resolve_precision
@@ -93,6 +95,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     route_lightning_logs()
     out_dir = Path(out_dir)
     det = OmegaConf.to_container(cfg.detector, resolve=True)
+    if "init" in cfg:  # starts from earlier weights (init=run|checkpoints): the fine-tuning budget replaces epochs, lr
+        det = fine_tuning(det, OmegaConf.to_container(cfg.init.train, resolve=True))
     trainer_cfg = OmegaConf.to_container(cfg.trainer, resolve=True) if "trainer" in cfg else {}
     L.seed_everything(int(cfg.seed if det.get("seed") is None else det["seed"]), workers=True)
     torch.set_num_threads(_threads(trainer_cfg))
@@ -106,6 +110,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     channels_last = bool(det["channels_last"]) and precision == BF16
     module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"],
                              channels_last)
+    if "init" in cfg:  # before training; a resumed attempt's last.ckpt below then replaces them
+        load_start(module.net, inputs[INIT_INPUT])
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     workers = loader_workers(det["num_workers"], trainer_cfg.get("accelerator", "auto"))
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],

@@ -22,11 +22,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from stages.checkpoints import best_and_latest, weight_averaging
+from stages.init_source import INIT_INPUT
 from stages.lightning_logs import lightning_progress, route_lightning_logs
 from stages.precision import BF16, FP32, resolve_precision
 from stages.relation.augment import AugmentConfig
 from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
+from stages.relation.warm_start import fine_tuning, start_states
 from stages.relation.warp import BoxWarpConfig
 from stages.word_format import load_image, open_dataset
 
@@ -80,6 +82,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     route_lightning_logs()
     started = time.perf_counter()
     out_dir = Path(out_dir)
+    if "init" in cfg:  # starts from earlier weights (init=run|checkpoints): the fine-tuning budget replaces relation.train's
+        cfg = fine_tuning(cfg, cfg.init.train)
     rel = cfg.relation
     if int(rel.train.epochs) < 1:
         raise ValueError(f"relation.train.epochs must be >= 1, got {rel.train.epochs}")
@@ -98,7 +102,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
                        cache_dir, min_box_px)
     seeds = [int(rel.train.seed) + k for k in range(n_members)]
-    members = [train_member(cfg, ds, priors, in_cfg, model_cfg, val, seed, out_dir, k if n_members > 1 else None)
+    starts = start_states(inputs[INIT_INPUT], n_members) if "init" in cfg else [None] * n_members
+    members = [train_member(cfg, ds, priors, in_cfg, model_cfg, val, seed, out_dir, k if n_members > 1 else None,
+                            starts[k])
                for k, seed in enumerate(seeds)]
     if members[0] is None:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
@@ -152,11 +158,12 @@ class TrainedMember:
 
 
 def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInputs, seed: int, out_dir: Path,
-                 index: int | None) -> TrainedMember | None:
+                 index: int | None, start: dict | None = None) -> TrainedMember | None:
     """Train one relation network from ``seed`` (initial weights, shuffling, flips, augmentation and the simulated
     detections all follow it); ``index``: its place in an ensemble (its checkpoints and finished weights then
     live under ``members/<index>``, so an interrupted ensemble resumes where it stopped), None for a lone
-    network. None on a DDP rank other than 0."""
+    network. ``start``: the state_dict it starts from (init=run|checkpoints), None for random weights. None on a
+    DDP rank other than 0."""
     import lightning as L
     import torch
     from lightning.pytorch.callbacks import EarlyStopping
@@ -196,6 +203,8 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
     module = new_module()
+    if start is not None:  # a resumed attempt's last.ckpt (trainer.fit below) then replaces them
+        module.model.load_state_dict(start)
     augment = AugmentConfig.from_cfg(plain.get("augment"))
     box_warp = BoxWarpConfig.from_cfg(plain.get("box_warp"))
     workers = loader_workers(rel.train.get("num_workers"), tr.accelerator)

@@ -1,0 +1,72 @@
+"""The detector's starting weights (the ``init`` group, stages/init_source.py; docs/stages.md, "init"): the stage's
+plan-time ``resolve`` hook, its fine-tuning budget, and the loading of the weights before training."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from stages.init_source import Network, check_fits, load_state, resolve_start, scaled_epochs
+
+DETECTOR = Network("detector", "model.pt", "net.")
+
+
+def budget(train: dict, cfg) -> dict:
+    """``init.detector_train`` with its nulls filled from the from-scratch budget (conf/init/_finetune.yaml)."""
+    from omegaconf import OmegaConf
+
+    det = OmegaConf.to_container(cfg.detector, resolve=True)
+
+    def given(key, default):
+        return default if train.get(key) is None else train[key]
+
+    return {"epochs": int(given("epochs", scaled_epochs(det["epochs"]))),
+            "lr": float(given("lr", float(det["optimizer"]["lr"]) / 3)),
+            "warmup_fraction": float(given("warmup_fraction", det["optimizer"]["warmup_fraction"])),
+            "ema_decay": float(given("ema_decay", det.get("ema_decay", 0.0)))}
+
+
+def _group_of(path: Path):
+    trained = Path(path).parent / "model.json"  # beside a detector stage's model.pt: what it was built with
+    name = None
+    if trained.is_file():
+        try:
+            name = json.loads(trained.read_text())["backbone"]["name"]
+        except (ValueError, KeyError, TypeError):
+            name = None
+    hint = f"detector/backbone={name}" if name else "detector/backbone"
+
+    def group_of(key: str) -> str:
+        if key.startswith("backbone."):
+            return hint
+        return f"detector.regression and {hint} (its head_conv)"
+
+    return group_of
+
+
+def check(path: Path, state: dict, cfg) -> None:
+    """Raise unless ``state`` loads into the detector the config builds (key by key, shape by shape)."""
+    from omegaconf import OmegaConf
+
+    from stages.detector.model import build_centernet, model_config
+
+    expected = build_centernet(model_config(OmegaConf.to_container(cfg.detector, resolve=True))).state_dict()
+    check_fits(expected, state, path, "init.detector", _group_of(path))
+
+
+def resolve(cfg, context) -> dict | None:
+    """The detector stage's ``resolve`` hook (conf/config.yaml; pipeline.keys)."""
+    return resolve_start(cfg, context, DETECTOR, budget, check)
+
+
+def fine_tuning(det: dict, train: dict) -> dict:
+    """The stage's ``detector`` settings with the fine-tuning budget (``init.train``) in place of the
+    from-scratch one."""
+    return {**det, "epochs": int(train["epochs"]), "ema_decay": float(train["ema_decay"]),
+            "optimizer": {**det["optimizer"], "lr": float(train["lr"]),
+                          "warmup_fraction": float(train["warmup_fraction"])}}
+
+
+def load_start(net, path: Path) -> None:
+    """The starting weights into ``net`` (all of them: the hook checked every key and shape at plan time)."""
+    net.load_state_dict(load_state(Path(path), DETECTOR))
