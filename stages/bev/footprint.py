@@ -15,11 +15,21 @@ calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Pe
 
 ``box_bottom`` (no relation at all) back-projects the bottom centre of the vehicle box and pushes it away
 from the camera by a fitted distance; its axis is the box's back-projected bottom edge, along the vehicle
-when that edge is longer than a car is wide. No method predicts which end of a vehicle is its front
-(couples carry no roles), so every axis is undirected: headings are compared modulo 180 deg.
+when that edge is longer than a car is wide.
+
+**Heading direction.** A relation may name each wheel's role (``front`` / ``rear``: DeepWORD's role head and the
+ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
+(a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
+vehicle's front and the estimate is ``directed``; otherwise (``box``, wheels without roles) only the axis is
+known and the heading's sign is arbitrary, so it is scored both over 360 deg and modulo 180 deg.
+
+**Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
+scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
+detector's scores on detected boxes, 1 on ground-truth boxes).
 
 ``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
-one vehicle (seen by two cameras); its footprint is the mean of its strongest estimates.
+one vehicle (seen by two cameras); its footprint is the mean of its strongest estimates, its heading turned
+the way its strongest directed estimates point, its confidence the highest of its estimates'.
 """
 
 from __future__ import annotations
@@ -35,6 +45,8 @@ from stages.word_format import VEHICLE, WHEEL, Record
 
 # evidence levels, strongest first
 EVIDENCE = ("sides", "side", "axle", "wheel", "box")
+EVIDENCE_CONFIDENCE = {"sides": 1.0, "side": 0.9, "axle": 0.7, "wheel": 0.5, "box": 0.3}
+EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # wheels the evidence rests on (cap 2)
 
 
 @dataclass(frozen=True)
@@ -71,6 +83,8 @@ class Estimate:
     camera: str
     vehicle_box_id: int
     image: str
+    confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
+    directed: bool = False   # the heading points to the front (wheel roles), else only the axis is known
 
     @property
     def rank(self) -> int:
@@ -206,7 +220,27 @@ def _mean_box(boxes: list[Box3D]) -> Box3D:
     x = float(np.mean([b.x for b in boxes]))
     y = float(np.mean([b.y for b in boxes]))
     yaw = 0.5 * math.atan2(sum(math.sin(2 * b.yaw) for b in boxes), sum(math.cos(2 * b.yaw) for b in boxes))
-    return Box3D(x, y, float(np.mean([b.length for b in boxes])), float(np.mean([b.width for b in boxes])), yaw)
+    return Box3D(x, y, float(np.mean([b.length for b in boxes])), float(np.mean([b.width for b in boxes])), yaw,
+                 float(np.mean([b.height for b in boxes])))
+
+
+def _flip(box: Box3D) -> Box3D:
+    return replace(box, yaw=math.remainder(box.yaw + math.pi, 2 * math.pi))
+
+
+def _ordered(a: int, b: int, roles: dict[int, str]) -> tuple[int, int, bool]:
+    """Two same-side wheels rear first when their roles tell (``directed``), else as given."""
+    ra, rb = roles.get(a), roles.get(b)
+    if (ra, rb) == ("front", "rear"):
+        return b, a, True
+    return a, b, (ra, rb) == ("rear", "front")
+
+
+def orient(box: Box3D, headings: list[float]) -> Box3D:
+    """``box`` with its heading turned the way most of the directed ``headings`` point."""
+    if headings and sum(math.cos(h - box.yaw) for h in headings) < 0:
+        return _flip(box)
+    return box
 
 
 def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relations: bool = True) -> list[Estimate]:
@@ -225,6 +259,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y))."""
     by_id = {int(b[6]): b for b in rec.boxes}
     owner = rec.owner_of() if use_relations else {}
+    roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
     couples = [(a, b) for a, b in rec.wheel_pairs if a in contacts and b in contacts] if use_relations else []
     side_threshold = (prior.wheelbase + prior.width) / 2
     out = []
@@ -232,12 +267,15 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
         vbox = by_id[vid]
         wheels = [w for w, v in owner.items() if v == vid and w in contacts]
         own_couples = [(a, b) for a, b in couples if owner.get(a) == vid and owner.get(b) == vid]
-        box, evidence = None, "box"
+        box, evidence, directed, used = None, "box", False, []
         if len(own_couples) >= 2:
-            sides = [_side_box(cam, contacts[a], contacts[b], prior, far_side=False) for a, b in own_couples[:2]]
+            ordered = [_ordered(a, b, roles) for a, b in own_couples[:2]]
+            sides = [_side_box(cam, contacts[a], contacts[b], prior, far_side=False) for a, b, _ in ordered]
             centre = np.mean([contacts[w] for pair in own_couples[:2] for w in pair], axis=0)
             merged = _mean_box(sides)
             box, evidence = Box3D(float(centre[0]), float(centre[1]), merged.length, prior.width, merged.yaw), "sides"
+            headings = [s.yaw for s, (_, _, d) in zip(sides, ordered, strict=True) if d]
+            box, directed, used = orient(box, headings), bool(headings), [w for pair in own_couples[:2] for w in pair]
         elif len(wheels) >= 2:
             if own_couples:
                 a, b = own_couples[0]
@@ -245,18 +283,31 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                 a, b = max(((p, q) for i, p in enumerate(wheels) for q in wheels[i + 1:]),
                            key=lambda pq: np.linalg.norm(contacts[pq[0]] - contacts[pq[1]]))
             apart = float(np.linalg.norm(contacts[a] - contacts[b]))
+            used = [a, b]
             if own_couples or apart >= side_threshold:
+                a, b, directed = _ordered(a, b, roles)
                 box, evidence = _side_box(cam, contacts[a], contacts[b], prior), "side"
             else:
                 box, evidence = _axle_box(cam, contacts[a], contacts[b], prior), "axle"
+                axle_roles = {roles.get(a), roles.get(b)}
+                directed = len(axle_roles) == 1 and None not in axle_roles
+                if axle_roles == {"front"}:  # the body extends back from the front axle: the front faces the camera
+                    box = _flip(box)
         elif len(wheels) == 1:
-            box = _wheel_box(cam, contacts[wheels[0]], vbox, prior)
-            evidence = "wheel"
+            box, evidence, used = _wheel_box(cam, contacts[wheels[0]], vbox, prior), "wheel", wheels
+            role = roles.get(wheels[0])
+            if box is not None and role is not None:
+                ahead = float(np.dot(contacts[wheels[0]] - (box.x, box.y), (math.cos(box.yaw), math.sin(box.yaw))))
+                box, directed = (_flip(box) if (ahead < 0) == (role == "front") else box), True
         if box is None:
-            box, evidence = box_bottom_estimate(cam, vbox, prior), "box"
+            box, evidence, directed, used = box_bottom_estimate(cam, vbox, prior), "box", False, []
         if box is not None:
             box = replace(box, height=prior.height)
-            out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image))
+            conf = EVIDENCE_CONFIDENCE[evidence] * float(vbox[4])
+            if used:
+                conf *= float(np.mean([by_id[w][4] for w in used]))
+            out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
+                                confidence=conf, directed=directed))
     return out
 
 
@@ -280,8 +331,27 @@ def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, 
     fused = []
     for g in groups:
         best = [e.box for e in g if e.rank == g[0].rank]
-        fused.append((_mean_box(best) if len(best) > 1 else best[0], g))
+        box = _mean_box(best) if len(best) > 1 else best[0]
+        directed = [e for e in g if e.directed]
+        if directed:  # the heading of the strongest directed estimates (of any camera of the group)
+            box = orient(box, [e.box.yaw for e in directed if e.rank == directed[0].rank])
+        fused.append((box, g))
     return fused
+
+
+def group_confidence(group: list[Estimate]) -> float:
+    """A fused footprint's confidence: the highest of its estimates'."""
+    return max(e.confidence for e in group)
+
+
+def group_directed(group: list[Estimate]) -> bool:
+    """Whether a fused footprint's heading points to the front (one of its estimates is directed)."""
+    return any(e.directed for e in group)
+
+
+def group_wheels(group: list[Estimate]) -> int:
+    """Wheels (0, 1, 2 = two or more) the fused footprint's strongest evidence rests on."""
+    return EVIDENCE_WHEELS[group[0].evidence]
 
 
 # --- fitting the prior on 3D truth ------------------------------------------------------------------------

@@ -1,6 +1,10 @@
-"""Bird's-eye-view footprint metrics, nuScenes-style where they fit.
+"""Bird's-eye-view footprint metrics.
 
-Per frame, estimated footprints are matched to true vehicles greedily by BEV centre distance (closest pairs
+``detection_scores`` scores the fused footprints of every frame the nuScenes way (docs/bev.md, "Scoring"): AP
+with centre-distance matching at 0.5 / 1 / 2 / 4 m over estimates ranked by confidence, and the true-positive
+errors ATE, ASE, AOE (over 360 deg and modulo 180 deg) at 2 m, per subset of true vehicles.
+
+The paired medians (``match_frame``, ``summarise``, kept so that their history reads on): per frame, estimated footprints are matched to true vehicles greedily by BEV centre distance (closest pairs
 first) up to ``match_m`` (2 m). Per matched vehicle: centre error (m, nuScenes' ATE), heading error (deg,
 modulo 180: no method predicts which end is the front), corner error (m: mean distance of the four
 corners, the better of the two directions) and the BEV IoU of the two footprints (shapely). Recall is the
@@ -27,6 +31,7 @@ class TrueVehicle:
     box: Box3D
     paired: bool = False   # two same-side wheels annotated in at least one of the frame's images
     hard: bool = False     # annotated in an image of the hard test subset
+    wheels: int = 0        # most of its wheels annotated in one of the frame's images, capped at 2 (its population)
 
     @property
     def range_m(self) -> float:
@@ -79,4 +84,159 @@ def summarise(matches: list[Match]) -> dict[str, float]:
     out = {k: float(np.median([e[k] for e in errs])) if errs else float("nan") for k in METRICS[:-1]}
     out["recall"] = 100.0 * len(errs) / len(matches) if matches else float("nan")
     out["vehicles"] = float(len(matches))
+    return out
+
+
+# --- nuScenes-style detection scoring on the frame ------------------------------------------------------------
+#
+# nuScenes' detection AP (nuscenes-devkit, eval/detection/algo.py): estimates of all frames ranked by confidence,
+# each matched in that order to the nearest not yet taken true vehicle of its frame whose BEV centre lies closer
+# than the threshold; the precision-recall curve sampled at 101 recall levels (precision 0 beyond the highest
+# recall reached); AP = the mean over the recall levels above MIN_RECALL of max(precision - MIN_PRECISION, 0),
+# divided by 1 - MIN_PRECISION (so a perfect curve gives 1). TP errors (ATE, ASE, AOE) at TP_THRESHOLD: the
+# running mean of the matches' errors in confidence order, read at each recall level, averaged over the recall
+# levels above MIN_RECALL up to the highest recall reached.
+
+DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
+TP_THRESHOLD = 2.0
+MIN_RECALL = 0.1
+MIN_PRECISION = 0.1
+RECALL_LEVELS = 101
+
+
+def ap_key(threshold: float) -> str:
+    """``ap_0p5m``, ``ap_1m``, ``ap_2m``, ``ap_4m``: AP (%) at one centre-distance threshold."""
+    return "ap_" + f"{threshold:g}".replace(".", "p") + "m"
+
+
+DETECTION_METRICS = ("ap", *(ap_key(t) for t in DIST_THRESHOLDS), "ate_m", "ase", "aoe_rad", "aoe_deg",
+                     "aoe180_deg", "iou", "recall", "precision", "vehicles", "estimates")
+
+
+@dataclass(frozen=True)
+class Scored:
+    """A fused footprint as the detection scoring sees it."""
+
+    box: Box3D
+    confidence: float        # ranks the estimates (docs/bev.md: from its evidence and its boxes' scores)
+    wheels: int = 0          # wheels its evidence rests on (0, 1, 2 = two or more; reported, not a subset rule)
+
+    @property
+    def range_m(self) -> float:
+        return math.hypot(self.box.x, self.box.y)
+
+
+def yaw_error(a: float, b: float, period: float = 2 * math.pi) -> float:
+    """Smallest angle (rad) between two headings, modulo ``period`` (2 pi: front and back told apart; pi: axes)."""
+    return abs(math.remainder(a - b, period))
+
+
+def scale_error(truth: Box3D, est: Box3D) -> float:
+    """nuScenes' ASE: 1 - the 3D IoU of the two boxes with centre and heading aligned (sizes only)."""
+    inter = min(truth.length, est.length) * min(truth.width, est.width) * min(truth.height, est.height)
+    union = truth.length * truth.width * truth.height + est.length * est.width * est.height - inter
+    return 1.0 - inter / union if union > 0 else 1.0
+
+
+def match_errors(truth: Box3D, est: Box3D) -> dict[str, float]:
+    return {"ate_m": math.hypot(est.x - truth.x, est.y - truth.y), "ase": scale_error(truth, est),
+            "aoe_rad": yaw_error(est.yaw, truth.yaw), "aoe180_rad": yaw_error(est.yaw, truth.yaw, math.pi),
+            "iou": bev_iou(truth, est)}
+
+
+def match_by_confidence(truth: list[Box3D], estimates: list[Scored], threshold: float) -> list[int | None]:
+    """nuScenes' matching in one frame: estimates by falling confidence, each to the nearest untaken true vehicle
+    closer than ``threshold`` (strictly). Returns, per estimate in the given order, the true index or None."""
+    taken, out = set(), [None] * len(estimates)
+    for j in sorted(range(len(estimates)), key=lambda j: -estimates[j].confidence):
+        e = estimates[j]
+        best, best_d = None, math.inf
+        for i, t in enumerate(truth):
+            if i not in taken:
+                d = math.hypot(t.x - e.box.x, t.y - e.box.y)
+                if d < best_d:
+                    best, best_d = i, d
+        if best is not None and best_d < threshold:
+            taken.add(best)
+            out[j] = best
+    return out
+
+
+def average_precision(precision: np.ndarray) -> float:
+    """nuScenes' calc_ap on a precision curve sampled at RECALL_LEVELS recall levels (0..1), as a fraction."""
+    prec = np.array(precision, dtype=np.float64)[round(100 * MIN_RECALL) + 1:] - MIN_PRECISION
+    prec[prec < 0] = 0
+    return float(np.mean(prec)) / (1.0 - MIN_PRECISION)
+
+
+def pr_curve(tp: np.ndarray, confidence: np.ndarray, n_true: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(recall levels, precision, confidence) at RECALL_LEVELS recall levels from the ranked true/false flags."""
+    tp_c = np.cumsum(tp).astype(np.float64)
+    fp_c = np.cumsum(1 - tp).astype(np.float64)
+    levels = np.linspace(0, 1, RECALL_LEVELS)
+    if not len(tp) or tp_c[-1] == 0:
+        return levels, np.zeros(RECALL_LEVELS), np.zeros(RECALL_LEVELS)
+    recall = tp_c / n_true
+    precision = tp_c / (tp_c + fp_c)
+    return levels, np.interp(levels, recall, precision, right=0), np.interp(levels, recall, confidence, right=0)
+
+
+def tp_error(errors: np.ndarray, match_conf: np.ndarray, level_conf: np.ndarray) -> float:
+    """nuScenes' calc_tp: the running mean of the matches' errors (confidence order) read at each recall level's
+    confidence, averaged over the recall levels above MIN_RECALL up to the highest one reached; NaN without matches."""
+    if not len(errors):
+        return float("nan")
+    running = np.cumsum(errors) / np.arange(1, len(errors) + 1)
+    at_level = np.interp(level_conf[::-1], match_conf[::-1], running[::-1])[::-1]
+    nonzero = np.nonzero(level_conf)[0]
+    first, last = round(100 * MIN_RECALL) + 1, (int(nonzero[-1]) if len(nonzero) else 0)
+    if last < first:  # the highest recall reached is under MIN_RECALL: the mean over the matches
+        return float(np.mean(errors))
+    return float(np.mean(at_level[first:last + 1]))
+
+
+def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_truth, keep_estimate) -> dict[str, float]:
+    """nuScenes-style scores of one subset over all frames.
+
+    Each frame is matched as a whole (every true vehicle, every estimate) at each threshold; then a match to a true
+    vehicle in the subset (``keep_truth``) is a true positive, an unmatched estimate in the subset
+    (``keep_estimate``: by its own range and evidence) a false positive, and an estimate matched to a vehicle
+    outside the subset counts for neither. AP in %, per threshold and their mean (``ap``); ATE (m), ASE, AOE over
+    360 deg (rad and deg) and modulo 180 deg (deg) at TP_THRESHOLD, recall-averaged; ``iou`` the mean BEV IoU of the
+    matches at TP_THRESHOLD; ``recall`` and ``precision`` (%) of all estimates at TP_THRESHOLD."""
+    n_true = sum(keep_truth(t) for truth, _ in frames for t in truth)
+    out = {k: float("nan") for k in DETECTION_METRICS}
+    out["vehicles"] = float(n_true)
+    if n_true == 0:
+        out["estimates"] = float(sum(keep_estimate(e) for _, ests in frames for e in ests))
+        return out
+    aps = []
+    for th in DIST_THRESHOLDS:
+        ranked = []  # (confidence, is_tp, errors)
+        for truth, ests in frames:
+            boxes = [t.box for t in truth]
+            for e, i in zip(ests, match_by_confidence(boxes, ests, th), strict=True):
+                if i is not None and keep_truth(truth[i]):
+                    ranked.append((e.confidence, 1, match_errors(boxes[i], e.box)))
+                elif i is None and keep_estimate(e):
+                    ranked.append((e.confidence, 0, None))
+        ranked.sort(key=lambda r: -r[0])
+        tp = np.array([r[1] for r in ranked], dtype=np.int64)
+        conf = np.array([r[0] for r in ranked], dtype=np.float64)
+        _, precision, level_conf = pr_curve(tp, conf, n_true)
+        aps.append(100.0 * average_precision(precision))
+        out[ap_key(th)] = aps[-1]
+        if th == TP_THRESHOLD:
+            matched = [r for r in ranked if r[1]]
+            mconf = np.array([r[0] for r in matched], dtype=np.float64)
+            for key in ("ate_m", "ase", "aoe_rad"):
+                out[key] = tp_error(np.array([r[2][key] for r in matched]), mconf, level_conf)
+            out["aoe_deg"] = math.degrees(out["aoe_rad"])
+            out["aoe180_deg"] = math.degrees(tp_error(np.array([r[2]["aoe180_rad"] for r in matched]), mconf,
+                                                      level_conf))
+            out["iou"] = float(np.mean([r[2]["iou"] for r in matched])) if matched else float("nan")
+            out["recall"] = 100.0 * len(matched) / n_true
+            out["precision"] = 100.0 * len(matched) / len(ranked) if ranked else float("nan")
+            out["estimates"] = float(len(ranked))
+    out["ap"] = float(np.mean(aps))
     return out

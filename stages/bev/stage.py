@@ -8,7 +8,10 @@ and the fitted baselines, exactly as evaluate scores them) and adds ``box_bottom
 
 Outputs: ``bev.json`` (every number), ``bev_report.md``, ``footprint_prior.json`` (the shape prior fitted on
 train), ``footprints/<boxes>_<method>.jsonl`` (fused footprints per frame) and ``artifacts/top_view_*.png``.
-MLflow keys: ``bev.<boxes>.<method>.<metric>`` (matched vehicles within ``bev.max_range_m``),
+MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.detection_scores``: nuScenes AP at
+0.5/1/2/4 m, ATE, ASE, AOE, IoU, recall, precision) as ``bev.<boxes>.<method>.<subset>.<metric>`` for the subsets
+``all``, ``two_wheels``, ``one_wheel``, ``no_wheel`` (within ``bev.max_range_m``) and the ``<lo>-<hi>m`` distance
+bins; and the paired medians as ``bev.<boxes>.<method>.<metric>`` (matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
 visible) and ``hard`` (in a hard test image) within the range, and ``<lo>_<hi>m`` distance bins.
 """
@@ -26,8 +29,25 @@ import cv2
 import numpy as np
 
 from stages.bev.figure import top_view
-from stages.bev.footprint import FootprintPrior, estimate_record, fit_prior, fuse_frame, wheel_contacts
-from stages.bev.metrics import METRICS, TrueVehicle, match_frame, summarise
+from stages.bev.footprint import (
+    FootprintPrior,
+    estimate_record,
+    fit_prior,
+    fuse_frame,
+    group_confidence,
+    group_directed,
+    group_wheels,
+    wheel_contacts,
+)
+from stages.bev.metrics import (
+    DETECTION_METRICS,
+    METRICS,
+    Scored,
+    TrueVehicle,
+    detection_scores,
+    match_frame,
+    summarise,
+)
 from stages.evaluate.stage import predictions_file
 from stages.format_3d import Missing3DError, record_camera, record_objects_3d
 from stages.word_format import WHEEL, Dataset, Record, open_dataset, read_records
@@ -68,11 +88,15 @@ def frame_truth(test: list[Record], hard: set[str]) -> dict[int, list[TrueVehicl
         vehicles, _ = record_objects_3d(rec, NEEDED_BY)
         owner = rec.owner_of()
         paired = {owner[a] for a, b in rec.wheel_pairs if a in owner and owner.get(b) == owner[a]}
+        n_wheels = defaultdict(int)
+        for v in owner.values():
+            n_wheels[v] += 1
         for vid, box in vehicles.items():
             key = (round(box.x, 2), round(box.y, 2))
             tv = frames[rec.frame_id].setdefault(key, TrueVehicle(box))
             tv.paired |= vid in paired
             tv.hard |= rec.image in hard
+            tv.wheels = max(tv.wheels, min(2, n_wheels[vid]))
     return {f: list(v.values()) for f, v in frames.items()}
 
 
@@ -84,6 +108,34 @@ def populations(bcfg) -> dict[str, callable]:
     for lo, hi in bcfg.range_bins:
         pops[f"{lo:g}_{hi:g}m"] = lambda t, lo=float(lo), hi=float(hi): lo <= t.range_m < hi
     return pops
+
+
+WHEEL_POPULATIONS = {"two_wheels": 2, "one_wheel": 1, "no_wheel": 0}
+
+
+def _in_bin(lo: float, hi: float):
+    return lambda x: lo <= x.range_m < hi
+
+
+def detection_subsets(bcfg) -> dict[str, tuple]:
+    """Subset name -> (true-vehicle predicate, estimate predicate for false positives) of the detection scores:
+    ``all`` within ``bev.max_range_m``; the wheel populations within it (a true vehicle by its wheels annotated in
+    one of its images; an unmatched estimate within the range is a false positive of every population, as Waymo
+    counts its difficulty levels: an estimate cannot choose its population by the evidence it claims); the
+    distance bins ``<lo>-<hi>m`` (true vehicles and estimates each by its own range)."""
+    rng = float(bcfg.max_range_m)
+    in_range = lambda x: x.range_m <= rng  # noqa: E731
+    subsets = {"all": (in_range, in_range)}
+    for name, k in WHEEL_POPULATIONS.items():
+        subsets[name] = (lambda t, k=k: t.range_m <= rng and t.wheels == k, in_range)
+    for lo, hi in bcfg.range_bins:
+        inside = _in_bin(float(lo), float(hi))
+        subsets[f"{lo:g}-{hi:g}m"] = (inside, inside)
+    return subsets
+
+
+def scored(fused_frame: list) -> list[Scored]:
+    return [Scored(box, group_confidence(g), group_wheels(g)) for box, g in fused_frame]
 
 
 def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict, prior: FootprintPrior,
@@ -119,7 +171,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
     pred_dir = Path(inputs["evaluate"]) / "predictions"
-    results, notes, fused_by = {}, [], {}
+    results, detection, notes, fused_by = {}, {}, [], {}
     (out_dir / "footprints").mkdir(exist_ok=True)
     for boxes in bcfg.box_sources:
         methods = [m for m in bcfg.methods if predictions_file(pred_dir, boxes, m).is_file()]
@@ -138,8 +190,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
             matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
             results[boxes][method] = {
                 pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
+            frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
+            detection.setdefault(boxes, {})[method] = {
+                name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
             write_footprints(out_dir / "footprints" / f"{boxes}_{method}.jsonl", fused)
-    report = {"results": results, "notes": notes, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
+    report = {"results": results, "detection": detection, "notes": notes, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
               "match_m": float(bcfg.match_m), "frames": len(truth)}
     (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
     (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
@@ -147,11 +202,19 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     for name in ("bev_report.md", "bev.json", PRIOR_FILE):
         shutil.copy(out_dir / name, artifacts / name)
     print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
-    return flatten(results)
+    return flatten(results, detection)
 
 
-def flatten(results: dict) -> dict[str, float]:
+def flatten(results: dict, detection: dict | None = None) -> dict[str, float]:
+    """MLflow keys: the paired medians ``bev.<boxes>.<method>[.<population>].<metric>`` (METRICS) and the
+    detection scores ``bev.<boxes>.<method>.<subset>.<metric>`` (DETECTION_METRICS; subsets ``all``,
+    ``two_wheels``, ``one_wheel``, ``no_wheel``, ``<lo>-<hi>m``)."""
     out = {}
+    for boxes, by_method in (detection or {}).items():
+        for method, by_subset in by_method.items():
+            for subset, vals in by_subset.items():
+                out.update({f"bev.{boxes}.{method}.{subset}.{k}": float(vals[k])
+                            for k in DETECTION_METRICS if not math.isnan(vals[k])})
     for boxes, by_method in results.items():
         for method, by_pop in by_method.items():
             for pop, vals in by_pop.items():
@@ -164,18 +227,48 @@ def write_footprints(path: Path, fused: dict[int, list]) -> None:
     with open(path, "w") as fh:
         for frame in sorted(fused):
             fh.write(json.dumps({"frame_id": frame, "footprints": [
-                {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group})}
+                {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group}),
+                 "confidence": round(group_confidence(group), 4),
+                 "heading_from": "roles" if group_directed(group) else "axis"}
                 for box, group in fused[frame]]}) + "\n")
 
 
+DETECTION_COLUMNS = (("ap", "AP"), ("ap_0p5m", "AP 0.5m"), ("ap_1m", "AP 1m"), ("ap_2m", "AP 2m"),
+                     ("ap_4m", "AP 4m"), ("ate_m", "ATE m"), ("ase", "ASE"), ("aoe_deg", "AOE deg"),
+                     ("aoe180_deg", "AOE mod 180 deg"), ("iou", "IoU"), ("recall", "recall"),
+                     ("precision", "precision"))
+
+
+def render_detection(detection: dict) -> list[str]:
+    lines = ["Scored the nuScenes way on each frame's fused footprints: AP (%) with centre-distance matching at "
+             "0.5/1/2/4 m over estimates ranked by confidence, `AP` their mean; ATE, ASE (1 - IoU of the aligned "
+             "sizes), AOE over 360 deg and modulo 180 deg: recall-averaged true-positive errors at 2 m; IoU: mean BEV "
+             "IoU of the 2 m matches; recall, precision (%) at 2 m. Subsets: `all`, `two_wheels`, `one_wheel`, "
+             "`no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
+    for boxes, by_method in detection.items():
+        lines += [f"## {boxes} boxes: detection scores", "",
+                  "| method | subset | vehicles | estimates | " + " | ".join(h for _, h in DETECTION_COLUMNS) + " |",
+                  "|---|---|---:|---:|" + "---:|" * len(DETECTION_COLUMNS)]
+        for subset in next(iter(by_method.values())):
+            for method, by_subset in by_method.items():
+                v = by_subset[subset]
+                cells = " | ".join("-" if math.isnan(v[k]) else f"{v[k]:.3g}" for k, _ in DETECTION_COLUMNS)
+                est = "-" if math.isnan(v["estimates"]) else str(int(v["estimates"]))
+                lines.append(f"| {method} | {subset} | {int(v['vehicles'])} | {est} | {cells} |")
+        lines.append("")
+    return lines
+
+
 def render_report(report: dict, bcfg) -> str:
-    lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", "",
+    lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", ""]
+    lines += render_detection(report.get("detection", {}))
+    lines += ["## Paired medians", "",
              f"Matched by BEV centre distance <= {report['match_m']:g} m; medians over matched vehicles; recall in %. "
              f"Rows `all`, `paired` (two same-side wheels visible) and `hard` count vehicles within "
              f"{report['max_range_m']:g} m of the vehicle frame's origin (under the ego's rear axle); the other rows "
              f"are distance bins. Headings modulo 180 deg. {report['frames']} test frames.", ""]
     for boxes, by_method in report["results"].items():
-        lines += [f"## {boxes} boxes", "", "| method | vehicles | " + " | ".join(METRICS) + " |",
+        lines += [f"### {boxes} boxes", "", "| method | vehicles | " + " | ".join(METRICS) + " |",
                   "|---|---|" + "---:|" * len(METRICS)]
         pops = list(next(iter(by_method.values())))
         for pop in pops:
