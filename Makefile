@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup pipeline test bench lint ui clean ablations datasets compare
+.PHONY: setup pipeline test bench lint ui clean ablations datasets compare adapt
 
 setup: $(STAMP)
 
@@ -28,6 +28,16 @@ ablations: setup
 
 datasets: setup
 	$(PY) -m pipeline experiment=datasets $(ARGS)
+
+# How many images of a new camera to label (docs/adapt.md): experiment=adapt, 21 jobs two at a time. Its finetune
+# recipe starts from the default run: BASE_RUN=<MLflow run id>, else the newest finished default run of profile
+# BASE_PROFILE (make pipeline's) in the tracking store, or a clear error. Then `make compare` draws the curves.
+BASE_PROFILE ?= quick
+adapt: setup
+	@base="$(BASE_RUN)"; \
+	if [ -z "$$base" ]; then base=$$($(PY) -m stages.tables.adapt_base --profile $(BASE_PROFILE)) || exit 1; fi; \
+	echo "adapt: finetune starts from run $$base"; \
+	$(PY) -m pipeline experiment=adapt adapt.base_run=$$base $(ARGS)
 
 compare: setup
 	$(PY) -m stages.tables --results docs/results.md $(ARGS)

@@ -6,7 +6,8 @@ logged parameters equal the row's composed configuration (``RowMatcher``), which
 (a sweep of ``make ablations`` or a single run); the newest such run is used. Writes
 ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's,
 ``stages.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed), ``bev.{md,csv}`` (bird's-eye-view
-footprints per method, docs/bev.md, of the newest run with them), logs them as
+footprints per method, docs/bev.md, of the newest run with them), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
+scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
 artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment, and with
 ``--results FILE`` writes the tables and charts, with the commit and date of every run, into that page.
 """
@@ -26,6 +27,7 @@ from pipeline.runs import RunRecord, load_runs
 from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
 from stages import paper
 from stages.evaluate.report import metric_name
+from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 from stages.word_format import SUBSETS
 
@@ -257,10 +259,11 @@ def bar_chart(tables: list[Table], path: Path) -> None:
 
 
 def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True,
-            datasets_experiment: str = DATASETS_EXPERIMENT, results: Path | None = None) -> dict:
+            datasets_experiment: str = DATASETS_EXPERIMENT, results: Path | None = None,
+            adapt_experiment: str = ADAPT_EXPERIMENT) -> dict:
     """Build the tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them, and (with
     ``results``) write them into that Markdown page; the datasets table from the runs whose experiment_name is
-    ``datasets_experiment``."""
+    ``datasets_experiment``, the adapt table and curves from those whose experiment_name is ``adapt_experiment``."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=uri)
@@ -274,6 +277,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t3, used3 = table3(runs, matcher)
     td, used_datasets = datasets_table(runs, datasets_experiment)
     tb, used_bev = bev_table(runs)
+    ta, used_adapt = adapt_table(runs, adapt_experiment)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
@@ -282,7 +286,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in [*tables, td, tb]))
+        + "\n".join(t.markdown() for t in [*tables, td, tb, ta]))
     (out_dir / "bev.md").write_text(tb.markdown())
     tb.write_csv(out_dir / "bev.csv")
     bar_chart(tables, out_dir / "comparison.png")
@@ -292,11 +296,17 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
         datasets_chart(td, out_dir / "datasets.png")
     else:  # no stale chart beside a table that has no rows
         (out_dir / "datasets.png").unlink(missing_ok=True)
+    (out_dir / "adapt.md").write_text(ta.markdown())
+    ta.write_csv(out_dir / "adapt.csv")
+    if used_adapt:
+        adapt_chart(ta, out_dir / "adapt.png")
+    else:
+        (out_dir / "adapt.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
-               | used_datasets | used_bev)
+               | used_datasets | used_bev | used_adapt)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if results is not None:
-        write_results_page(results, [*tables, td, tb], out_dir, scope)
+        write_results_page(results, [*tables, td, tb, ta], out_dir, scope)
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",
                                 tags={COMPARISON_TAG: COMPARISON_KIND, "profile": profile or "all"})
@@ -322,7 +332,7 @@ def write_results_page(page: Path, tables: list[Table], out_dir: Path, scope: st
     absent) with the tables and charts, copied next to it into ``<page stem>/``."""
     charts = page.parent / page.stem
     charts.mkdir(parents=True, exist_ok=True)
-    images = [name for name in ("comparison.png", "datasets.png") if (out_dir / name).is_file()]
+    images = [name for name in ("comparison.png", "datasets.png", "adapt.png") if (out_dir / name).is_file()]
     for name in images:
         shutil.copyfile(out_dir / name, charts / name)
     today = datetime.now(UTC).strftime("%Y-%m-%d")
@@ -358,10 +368,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-log", action="store_true", help="do not log a comparison run to MLflow")
     parser.add_argument("--datasets", default=DATASETS_EXPERIMENT, metavar="NAME",
                         help="the datasets table from the runs with experiment_name=NAME (default: %(default)s)")
+    parser.add_argument("--adapt", default=ADAPT_EXPERIMENT, metavar="NAME",
+                        help="the adapt table and curves from the runs with experiment_name=NAME (default: %(default)s)")
     args = parser.parse_args(argv)
     result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log,
-                     datasets_experiment=args.datasets, results=args.results)
+                     datasets_experiment=args.datasets, results=args.results, adapt_experiment=args.adapt)
     print((args.out / "comparison.md").read_text())
-    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, comparison.md, comparison.png"
+    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, adapt.{{md,csv,png}}, comparison.md, "
+          "comparison.png"
           + (f", {args.results}" if args.results else "")
           + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)
