@@ -79,3 +79,56 @@ def camera_of(pred: Record, calibration: dict | None) -> Camera | None:
     """The prediction's camera: the given calibration, else the record's own, else None."""
     cal = calibration if calibration is not None else pred.extra.get("calibration")
     return None if cal is None else camera_from_calibration(cal, name=pred.camera)
+
+
+WOODSCAPE_CAMERAS = {"FV": "front", "MVL": "left", "MVR": "right", "RV": "rear"}
+FRAME_VIEW_DIR = "top_views"
+
+
+def calibration_camera(cal: dict, path: Path, default: str) -> str:
+    """The camera a calibration file is of: its ``name`` (WoodScape's FV / MVL / MVR / RV, or front / left /
+    right / rear), else the file's stem when that names a camera, else ``default``."""
+    from stages.word_format import CAMERAS
+
+    for name in (str(cal.get("name", "")), Path(path).stem):
+        for key in (name, name.upper(), name.lower()):
+            if key in WOODSCAPE_CAMERAS:
+                return WOODSCAPE_CAMERAS[key]
+            if key in CAMERAS:
+                return key
+    return default
+
+
+def frame_top_view(views: list, title: str, half_extent_m: float = 14.0, fuse_radius_m: float = 1.5,
+                   size_px: int = 420) -> np.ndarray:
+    """One instant's top view: the footprints of its images ``views`` [(camera, estimates, contacts)] fused as the
+    bev stage fuses a frame's cameras (``fuse_frame``), around the rig of all their cameras, coloured by camera."""
+    from stages.bev.footprint import fuse_frame, group_directed
+
+    fused = fuse_frame([e for _, estimates, _ in views for e in estimates], fuse_radius_m)
+    rig = np.array([cam.translation[:2] for cam, _, _ in views])
+    contacts = [c for _, _, c in views if len(c)]
+    return top_view([], [b for b, _ in fused], np.concatenate(contacts) if contacts else np.zeros((0, 2)), rig,
+                    f"{title}: {len(fused)} vehicles, {len(views)} cameras", half_extent_m, size_px,
+                    cameras=[g[0].camera for _, g in fused], directed=[group_directed(g) for _, g in fused],
+                    seen_by=[len({e.camera for e in g}) for _, g in fused])
+
+
+def write_frame_views(out_dir: Path, preds: list[Record], views: dict) -> list[Path]:
+    """``out_dir/top_views/frame_<id>.png`` for every frame of ``preds`` with footprints from two or more images
+    (a single image's top view is beside its overlay already)."""
+    import cv2
+
+    by_frame: dict[int, list] = {}
+    for pred in preds:
+        if pred.image in views:
+            by_frame.setdefault(pred.frame_id, []).append(views[pred.image])
+    paths = []
+    for frame, frame_views in sorted(by_frame.items()):
+        if len(frame_views) < 2:
+            continue
+        path = Path(out_dir) / FRAME_VIEW_DIR / f"frame_{frame:06d}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), cv2.cvtColor(frame_top_view(frame_views, f"frame {frame}"), cv2.COLOR_RGB2BGR))
+        paths.append(path)
+    return paths

@@ -292,9 +292,10 @@ def end_to_end_method(evaluate_dir: Path) -> str:
 
 def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dict, fused_by: dict,
                   prior: FootprintPrior, bcfg, detected_method: str = "deepword") -> list[Path]:
-    """One figure per sample frame (the frames with the most vehicles in range, evenly spread): a top view
-    per method on ground-truth boxes, and ``detected_method`` (the end-to-end method) on detected boxes when there
-    are (DeepWORD when that method has no footprints here)."""
+    """One figure per sample frame (the frames with the most vehicles in range, evenly spread): the truth alone,
+    then a top view per method on ground-truth boxes, and ``detected_method`` (the end-to-end method) on detected
+    boxes when there are (DeepWORD when that method has no footprints here); each with the truth under the four
+    cameras' fused footprints (figure.py: colours by camera, arrows to the front, legend)."""
     by_frame = defaultdict(list)
     for rec in test:
         by_frame[rec.frame_id].append(rec)
@@ -314,10 +315,18 @@ def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dic
                 xy, ok = wheel_contacts(cameras[r.image], wheels[:, :4], prior)
                 contacts.append(xy[ok])
         contacts = np.concatenate(contacts) if contacts else np.zeros((0, 2))
-        panels = [top_view([t.box for t in truth[f]], [b for b, _ in fused_by[k][f]], contacts, rig,
-                           f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m)) for k in panels_of]
-        if not panels:
+        if not panels_of:
             continue
+        true_boxes = [t.box for t in truth[f]]
+        panels = [top_view(true_boxes, [], contacts, rig, f"frame {f}: truth ({len(true_boxes)} vehicles)",
+                           float(bcfg.view_m))]
+        for k in panels_of:
+            groups = fused_by[k][f]
+            panels.append(top_view(true_boxes, [b for b, _ in groups], contacts, rig,
+                                   f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m),
+                                   cameras=[g[0].camera for _, g in groups],
+                                   directed=[group_directed(g) for _, g in groups],
+                                   seen_by=[len({e.camera for e in g}) for _, g in groups]))
         path = artifacts / f"top_view_{f:06d}.png"
         cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(panels, axis=1), cv2.COLOR_RGB2BGR))
         paths.append(path)

@@ -19,7 +19,9 @@ run whose artifacts to use (default: the newest finished one; see ``stages.infer
 
 Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
 the dataset root, or to the images' common folder) and, per image, a Fig. 5-style overlay
-``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``). Wherever the detector runs it also
+``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``) and, with footprints, per frame of two or
+more overlaid images a top view of their cameras' footprints fused ``DIR/top_views/frame_<id>.png`` (loose images
+are one frame with ``--frame`` and one ``--calibration`` file per image, each naming its camera). Wherever the detector runs it also
 writes ``DIR/detections.jsonl``: every detection down to its score threshold, without relations (the
 operating point cuts them for the relations; average precision needs them all). Score a dataset's
 predictions with ``deepword score --gt ROOT --pred DIR/labels.jsonl [--detections DIR/detections.jsonl]``
@@ -151,23 +153,44 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Pat
 def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
     """Footprints for every prediction with a camera (``--calibration`` or the record's own); returns the
     predictions and {image: (camera, estimates, contacts)} for the overlays."""
-    from stages.bev.apply import CalibrationError, camera_of, footprints, load_prior, read_calibration_file
+    from dataclasses import replace
 
-    calibration = None
-    if args.calibration is not None:
+    from stages.bev.apply import (
+        CalibrationError,
+        calibration_camera,
+        camera_of,
+        footprints,
+        load_prior,
+        read_calibration_file,
+    )
+
+    calibration, per_image = None, {}
+    files = args.calibration or []
+    if len(files) > 1:  # one calibration file per image, in the images' order (e.g. one frame's four cameras)
+        if len(files) != len(preds) or args.dataset is not None:
+            raise InferError(f"--calibration: {len(files)} files for {len(preds)} images (give one file for every "
+                             "image, or one for all)")
+        try:
+            cals = [read_calibration_file(f, p.width, p.height) for f, p in zip(files, preds, strict=True)]
+        except CalibrationError as exc:
+            raise InferError(str(exc)) from None
+        preds = [replace(p, camera=calibration_camera(c, f, p.camera)) if args.frame else p
+                 for p, c, f in zip(preds, cals, files, strict=True)]
+        per_image = {p.image: c for p, c in zip(preds, cals, strict=True)}
+    elif files:
         sizes = {(p.width, p.height) for p in preds}
         try:
-            calibration = read_calibration_file(args.calibration, *min(sizes)) if sizes else None
+            calibration = read_calibration_file(files[0], *min(sizes)) if sizes else None
         except CalibrationError as exc:
             raise InferError(str(exc)) from None
         if len(sizes) > 1:
-            raise InferError(f"{args.calibration}: one calibration for images of {len(sizes)} different sizes")
-    if calibration is None and not any("calibration" in p.extra for p in preds):
+            raise InferError(f"{files[0]}: one calibration for images of {len(sizes)} different sizes")
+    if calibration is None and not per_image and not any("calibration" in p.extra for p in preds):
         return preds, {}
     bev_dir = args.bev if args.bev is not None else dirs.get("bev")
     if bev_dir is None:
         why = "footprints need the footprint prior of a bev stage: pass --bev DIR or a --run whose bev stage finished"
-        if args.calibration is not None:
+        if args.calibration:
             raise InferError(why)
         print(f"note: no bird's-eye-view footprints ({why})", file=sys.stderr)
         return preds, {}
@@ -177,7 +200,7 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[li
         raise InferError(str(exc)) from None
     out, views = [], {}
     for pred in preds:
-        cam = camera_of(pred, calibration)
+        cam = camera_of(pred, per_image.get(pred.image, calibration))
         if cam is None:
             out.append(pred)
             continue
@@ -188,6 +211,8 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[li
 
 
 def infer(args) -> list[Record]:
+    from dataclasses import replace
+
     from stages.word_format import load_image
 
     dirs = resolve_dirs(args, need_detector=args.detect or args.dataset is None)
@@ -204,6 +229,8 @@ def infer(args) -> list[Record]:
         overlays = args.overlays
     else:
         root, records, pixels = image_records(args.images, args.camera)
+        if args.frame:  # the images are one instant's cameras: one frame
+            records = [replace(r, frame_id=0) for r in records]
         detect, overlays = True, len(records)
 
     def rgb_of(rec: Record) -> np.ndarray:
@@ -231,6 +258,11 @@ def infer(args) -> list[Record]:
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
         write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))
+    if views:  # one instant's cameras fused into one top view (the bev stage's fusion), per frame overlaid
+        from stages.bev.apply import write_frame_views
+
+        shown = {p.image for p in preds[:overlays]}
+        write_frame_views(args.out, [p for p in preds if p.image in shown], views)
     return preds
 
 
@@ -252,8 +284,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", choices=CAMERAS, default="front", help="camera name written for loose images")
     p.add_argument("--overlays", type=int, default=0, help="with --dataset: overlays for the first N images")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
-    p.add_argument("--calibration", type=Path, help="WoodScape-style calibration JSON of the loose images' camera "
-                   "(footprints in bird's-eye view; a dataset's own `calibration` needs no flag)")
+    p.add_argument("--calibration", type=Path, nargs="+", help="WoodScape-style calibration JSON of the loose "
+                   "images' camera, or one per image in the images' order (footprints in bird's-eye view; a dataset's "
+                   "own `calibration` needs no flag)")
+    p.add_argument("--frame", action="store_true", help="the loose images are one instant's cameras (one frame): "
+                   "each camera named by its calibration file, their footprints fused into top_views/frame_000000.png")
     p.add_argument("--bev", type=Path, help="a bev stage output directory (its footprint prior; default: the run's)")
     return p
 
@@ -265,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give either IMAGE... or --dataset ROOT")
     if args.detect and args.dataset is None:
         p.error("--detect goes with --dataset (loose images are always detected)")
+    if args.frame and args.dataset is not None:
+        p.error("--frame goes with loose images (a dataset's records carry their frame_id)")
     from stages.inference.resolve import ResolveError
     from stages.inference.runtime import NoDetectorError
 

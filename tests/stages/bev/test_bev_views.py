@@ -1,0 +1,69 @@
+"""Top views: the bev stage's per-frame figure panels (legend, cameras' colours) and ``deepword infer``'s fused
+top view of one instant's cameras (several calibration files, one per image)."""
+
+import argparse
+import math
+
+import numpy as np
+import pytest
+
+from stages.bev.apply import calibration_camera, frame_top_view, write_frame_views
+from stages.bev.figure import CAMERA_RGB, LEGEND_PX, TITLE_PX, TRUE_RGB, top_view
+from stages.bev.footprint import footprints_from_contacts
+from stages.data.camera import nominal_camera
+from stages.format_3d import Box3D
+from stages.inference.infer import InferError, add_footprints, parser
+from tests.stages.bev.test_bev import LEFT, PRIOR, _camera, _contacts, _record
+
+
+def _has(img, rgb) -> bool:
+    return bool((np.abs(img.astype(int) - np.array(rgb)).sum(axis=2) <= 30).any())   # anti-aliased lines
+
+
+def _frame_views():
+    v = Box3D(8.0, 2.6, 4.5, 1.8, 0.05)
+    c = _contacts(v)
+    left = _camera()
+    front = nominal_camera("front", {**LEFT, "yaw_deg": 0.0, "pitch_deg": 23.0, "position": [3.7, 0.0, 0.66]},
+                           640, 480, [640, 480])
+    r_left = _record(left, [(0, 1, "rear"), (0, 2, "front")], [(1, 2)], n_vehicles=1, n_wheels=2)
+    r_front = _record(front, [(0, 1, "rear"), (0, 2, "rear")], [], n_vehicles=1, n_wheels=2, camera="front",
+                      image="images/front/000000.png")
+    views = {r_left.image: (left, footprints_from_contacts(r_left, left, PRIOR, {1: c["rr"], 2: c["fr"]}),
+                            np.array([c["rr"], c["fr"]])),
+             r_front.image: (front, footprints_from_contacts(r_front, front, PRIOR, {1: c["rl"], 2: c["rr"]}),
+                             np.array([c["rl"], c["rr"]]))}
+    return v, [r_left, r_front], views
+
+
+def test_a_panel_has_truth_the_cameras_colours_and_a_legend():
+    v, _, views = _frame_views()
+    (cam, estimates, contacts) = views["images/left/000000.png"]
+    img = top_view([v], [e.box for e in estimates], contacts, np.array([[0.0, 0.0], [3.7, 0.0]]), "t",
+                   cameras=["left"], directed=[True], seen_by=[1])
+    assert img.shape == (TITLE_PX + 420 + LEGEND_PX, 420, 3)
+    assert _has(img, TRUE_RGB) and _has(img[: TITLE_PX + 420], CAMERA_RGB["left"])
+    assert not _has(img[: TITLE_PX + 420], CAMERA_RGB["right"])   # no right-camera estimate drawn above the legend
+
+
+def test_one_instants_cameras_fuse_into_one_top_view(tmp_path):
+    v, recs, views = _frame_views()
+    img = frame_top_view(list(views.values()), "frame 0")
+    assert _has(img[: TITLE_PX + 420], CAMERA_RGB["left"])   # the left camera's side estimate leads the fused vehicle
+    paths = write_frame_views(tmp_path, recs, views)
+    assert [p.name for p in paths] == ["frame_000000.png"] and paths[0].is_file()
+    # a frame seen by one image only gets no fused view (its overlay carries its top view)
+    assert write_frame_views(tmp_path / "one", recs[:1], views) == []
+
+
+def test_calibration_files_name_their_cameras_and_must_be_one_per_image(tmp_path):
+    assert calibration_camera({"name": "MVL"}, tmp_path / "x.json", "front") == "left"
+    assert calibration_camera({}, tmp_path / "rear.json", "front") == "rear"
+    assert calibration_camera({"name": "other"}, tmp_path / "x.json", "front") == "front"
+    args = parser().parse_args(["a.png", "b.png", "--out", str(tmp_path), "--frame",
+                                "--calibration", "f.json", "l.json", "r.json"])
+    assert args.frame and len(args.calibration) == 3
+    _, recs, _ = _frame_views()
+    with pytest.raises(InferError, match="3 files for 2 images"):
+        add_footprints(args, {}, recs)
+    assert isinstance(args, argparse.Namespace) and math.isfinite(PRIOR.width)
