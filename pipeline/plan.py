@@ -9,6 +9,8 @@ from pipeline.cache import Entry
 from pipeline.keys import KeyParts
 
 VALUE_CHARS = 60
+CHANGES_SHOWN = 6   # a plan line names this many changed config leaves, then counts the rest (data=word against
+                    # data=synword differs in ~90 leaves: all of them would bury the plan)
 
 
 @dataclass
@@ -72,7 +74,9 @@ def explain_miss(parts: KeyParts, latest: dict | None, problem: str | None) -> s
         files = code_changes(latest.get("code", {}), parts.code)
         reasons.append("code changed: " + (", ".join(files) if files else "(file list unavailable)"))
     if latest.get("config") != parts.config:
-        reasons.append("config changed: " + "; ".join(config_changes(latest.get("config", {}), parts.config)))
+        changes = config_changes(latest.get("config", {}), parts.config)
+        more = f"; ... and {len(changes) - CHANGES_SHOWN} more" if len(changes) > CHANGES_SHOWN else ""
+        reasons.append("config changed: " + "; ".join(changes[:CHANGES_SHOWN]) + more)
     old_inputs = latest.get("inputs", {})
     for name, key in parts.inputs.items():
         if old_inputs.get(name) != key:

@@ -108,3 +108,16 @@ def test_a_stage_run_without_its_optional_input_has_its_own_key_and_the_plan_say
     assert "inputs changed: ['a'] -> []" in out
     again, _ = run(toy, toy.config(**optional_a), capsys)
     assert all(hits(again).values())  # both variants stay cached side by side
+
+
+def test_a_plan_line_names_a_few_config_changes_and_counts_the_rest():
+    from pipeline.keys import KeyParts
+    from pipeline.plan import CHANGES_SHOWN, explain_miss
+
+    old = {f"k{i:02d}": i for i in range(CHANGES_SHOWN + 4)}
+    new = {k: v + 1 for k, v in old.items()}
+    parts = KeyParts(stage="s", code={}, code_digest="c", config=new, inputs={}, watch={})
+    reason = explain_miss(parts, {"key": "old", "code_digest": "c", "config": old, "inputs": {}, "watch": {}}, None)
+    assert reason.count(" -> ") == CHANGES_SHOWN
+    assert reason.endswith("... and 4 more")
+    assert "k00: 0 -> 1" in reason
