@@ -46,7 +46,7 @@ bench: setup
 	$(PY) -m benchmarks $(ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check pipeline stages tests benchmarks
+	$(VENV)/bin/ruff check pipeline stages deepword tests benchmarks
 
 ui: setup
 	$(PY) -m pipeline.ui $(ARGS)

@@ -17,7 +17,7 @@ box regression (``detector.regression``).
 Variants are interleaved step by step (fp32, bf16, channels_last, both, fp32, ...) so that the load other
 processes put on a shared machine falls on all of them alike; the medians' ratios against fp32 are the
 figures to trust, the absolute rates depend on the load. bf16 is only timed where the CPU runs it natively
-(``stages.precision.cpu_has_native_bf16``): elsewhere emulated bf16 is slower and the stages train in fp32.
+(``stages.training.precision.cpu_has_native_bf16``): elsewhere emulated bf16 is slower and the stages train in fp32.
 The ratio is printed, never asserted.
 """
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
 
     from stages.detector.losses import detector_loss
     from stages.detector.model import DOWN_RATIO, build_centernet, model_config
-    from stages.precision import cpu_has_native_bf16
+    from stages.training.precision import cpu_has_native_bf16
 
     torch.set_num_threads(args.threads)
     _, det = default_configs()
@@ -223,7 +223,7 @@ def synthetic_scene(width: int, height: int, rng: np.random.Generator, objects: 
     unrealistically slow) and its record in input pixels, as ``CenterNetDataset.letterboxed`` caches them."""
     import cv2
 
-    from stages.word_format import Record
+    from deepword.word_format import Record
 
     ramp = np.linspace(60, 200, width, dtype=np.float32)
     image = np.repeat(np.stack([ramp, ramp[::-1], np.full_like(ramp, 128)], -1)[None], height, 0).astype(np.uint8)
@@ -278,7 +278,7 @@ def relation_step_ratio(steps: int, peaks: dict[str, float], images: int = 16) -
     from omegaconf import OmegaConf
 
     from benchmarks.bench_latency import TEST_OBJECT_COUNTS, random_graphs
-    from stages.relation.inputs import InputConfig
+    from deepword.relation_graph import InputConfig
     from stages.relation.lightning import RelationModule, collate_graphs
     from stages.relation.model import ModelConfig
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.word_format import image_size
+from deepword.word_format import image_size
 
 PAPER_IMAGES = 9000
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.paper import DSP_LATENCY
+from deepword.paper import DSP_LATENCY
 
 CONF = Path(__file__).resolve().parent.parent / "conf"
 TARGET = {"ms_per_img_b1": 1.6, "ms_per_10img_b10": 13.1}  # the latency targets, onnxruntime on 2 CPU cores
@@ -46,7 +46,7 @@ def default_configs() -> tuple[dict, dict]:
 
 
 def random_graphs(counts, size: int, seed: int = 0) -> list:
-    from stages.relation.inputs import ImageGraph
+    from deepword.relation_graph import ImageGraph
 
     rng = np.random.default_rng(seed)
     graphs = []
@@ -66,11 +66,11 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
     import torch
     from omegaconf import OmegaConf
 
+    from deepword.inference.runtime import DETECTOR_FILE, RELATION_FILES
+    from deepword.relation_graph import InputConfig
     from stages.detector.model import build_centernet, model_config
     from stages.export.onnx_export import export_detector, export_relation
     from stages.export.stage import detector_latency, quantize_int8, relation_latency, size_mb
-    from stages.inference.runtime import DETECTOR_FILE, RELATION_FILES
-    from stages.relation.inputs import InputConfig
     from stages.relation.model import ModelConfig, RelationNet, count_parameters
 
     rel, det = default_configs()

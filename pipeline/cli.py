@@ -12,6 +12,7 @@ from pathlib import Path
 from pipeline.errors import PipelineError
 from pipeline.ranks import current_rank
 from pipeline.runmode import is_single_run
+from pipeline.runner import run_pipeline
 from pipeline.tracker import prestart_worker
 
 # ``../conf`` made absolute: a relative config_path in a package turns into a ``pkg://`` lookup that
@@ -33,8 +34,6 @@ def spawnable_start_method() -> None:
 
 
 def _app(cfg) -> None:
-    from pipeline.runner import run_pipeline
-
     spawnable_start_method()
     try:
         run_pipeline(cfg)

@@ -12,8 +12,9 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
+from pipeline.outputs import check_declared
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve", "outputs"}
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,9 @@ class StageSpec:
     # ``module:function`` called at plan time, before any stage runs, to resolve what the declared config only
     # names (pipeline.keys.resolve_extras): e.g. a file to start from, whose content then joins the key.
     resolve: str | None = None
+    # {name: path relative to the stage's output directory, may hold {field} placeholders}: the files downstream
+    # stages read (pipeline.outputs)
+    outputs: tuple[tuple[str, str], ...] = ()
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -72,6 +76,14 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
             f"pipeline.stages.{name}.config: unknown top-level config key(s) {missing}; "
             f"known keys: {sorted(str(k) for k in cfg.keys())}"
         )
+    outputs = node.get("outputs")
+    if outputs is None:
+        outputs = {}
+    elif isinstance(outputs, DictConfig):
+        outputs = OmegaConf.to_container(outputs, resolve=True)
+    if not isinstance(outputs, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in outputs.items()):
+        raise PipelineError(f"pipeline.stages.{name}.outputs: expected a mapping of names to relative paths, got {outputs!r}")
+    check_declared(name, outputs)
     every_rank = node.get("every_rank", False)
     if not isinstance(every_rank, bool):
         raise PipelineError(f"pipeline.stages.{name}.every_rank: expected true or false, got {every_rank!r}")
@@ -87,6 +99,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         dataset=None if node.get("dataset") is None else str(node.get("dataset")),
         every_rank=every_rank,
         resolve=resolve,
+        outputs=tuple(outputs.items()),
     )
 
 

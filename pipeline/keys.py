@@ -27,8 +27,20 @@ from pipeline.dag import StageSpec
 from pipeline.errors import PipelineError
 from pipeline.watch import watch_fingerprint
 
-# Project modules a stage may import, whose changes invalidate it (besides its own top-level package).
-PROJECT_PACKAGES = frozenset({"stages", "pipeline"})
+# The top-level packages whose modules, when a stage imports them (transitively), are part of its code version
+# (besides its own top-level package): ``pipeline.code_packages`` in the config, else the engine alone.
+DEFAULT_CODE_PACKAGES = ("pipeline",)
+
+
+def code_packages(cfg: DictConfig) -> frozenset[str]:
+    """``pipeline.code_packages``: a list of top-level package names (the engine's own is always among them)."""
+    value = OmegaConf.select(cfg, "pipeline.code_packages", default=None)
+    if value is None:
+        return frozenset(DEFAULT_CODE_PACKAGES)
+    value = OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+    if not isinstance(value, list) or not all(isinstance(v, str) and v.isidentifier() for v in value):
+        raise PipelineError(f"pipeline.code_packages: expected a list of top-level package names, got {value!r}")
+    return frozenset(value) | set(DEFAULT_CODE_PACKAGES)
 
 
 def canonical_json(value) -> str:
@@ -142,7 +154,7 @@ def resolve_extras(spec: StageSpec, cfg: DictConfig, context: PlanContext | None
 
 def key_parts(spec: StageSpec, cfg: DictConfig, input_keys: dict[str, str],
               context: PlanContext | None = None) -> KeyParts:
-    version = code_version(spec.module, PROJECT_PACKAGES)
+    version = code_version(spec.module, code_packages(cfg))
     extra = resolve_extras(spec, cfg, context)
     return KeyParts(
         stage=spec.name,

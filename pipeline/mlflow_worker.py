@@ -12,6 +12,8 @@ import json
 import os
 import sys
 
+from pipeline.mlflow_ops import MlflowOps
+
 
 def _prewarm() -> None:
     """Import what the first request will need; the SQL store only if the URI will likely be sqlite."""
@@ -23,8 +25,6 @@ def _prewarm() -> None:
 
 
 def serve(requests, replies) -> None:
-    from pipeline.mlflow_ops import MlflowOps
-
     ops = None
     for line in requests:
         request = json.loads(line)

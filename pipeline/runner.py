@@ -25,6 +25,7 @@ from pipeline.checks import check_values
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
+from pipeline.outputs import StageInputs, missing_outputs
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
 from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
@@ -125,16 +126,25 @@ def _stage_cfg(parts: KeyParts) -> DictConfig:
     return sub
 
 
-def _stage_inputs(spec: StageSpec, parts: KeyParts, outputs: dict[str, Path]) -> dict[str, Path]:
-    """The upstream outputs (an optional input may be left out) and the files the resolve hook named, whose
-    content must still be what the key holds."""
-    inputs = {i: outputs[i] for i in spec.inputs if i in outputs}
+def _stage_inputs(spec: StageSpec, parts: KeyParts, outputs: dict[str, Path],
+                  specs: dict[str, StageSpec]) -> StageInputs:
+    """The upstream outputs (an optional input may be left out) with their declared outputs, and the files the
+    resolve hook named, whose content must still be what the key holds."""
+    inputs = StageInputs(spec.name, {i: outputs[i] for i in spec.inputs if i in outputs}, spec.inputs,
+                         {i: dict(specs[i].outputs) for i in spec.inputs})
     for name, path in parts.files.items():
         if not Path(path).is_file() or file_digest(path) != parts.inputs[name]:
             raise PipelineError(f"stage '{spec.name}': {name} file {path} changed or vanished since the plan; "
                                 "run again")
         inputs[name] = Path(path)
     return inputs
+
+
+def _check_outputs(spec: StageSpec, out_dir: Path, what: str) -> None:
+    missing = missing_outputs(out_dir, dict(spec.outputs))
+    if missing:
+        hint = "" if what == "did not write" else f"; recompute it with pipeline.force=[{spec.name}]"
+        raise PipelineError(f"stage '{spec.name}' {what} its declared output(s) {missing} in {out_dir}{hint}")
 
 
 def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
@@ -159,6 +169,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
             metrics = _check_metrics(spec.name, func(_stage_cfg(plan.parts), inputs, tmp / "out"))
         finally:
             tracking.set_active(None)
+        _check_outputs(spec, tmp / "out", "did not write")
         seconds = time.perf_counter() - start
         manifest = {
             "stage": spec.name, "parts": plan.parts.to_json(), "metrics": metrics, "seconds": seconds,
@@ -174,7 +185,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
 
 
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
-               outputs: dict[str, Path], settings: dict, launch: LaunchFile) -> dict:
+               outputs: dict[str, Path], settings: dict, launch: LaunchFile, specs: dict[str, StageSpec]) -> dict:
     name, key = plan.name, plan.key
     start = time.perf_counter()
     entry = plan.entry
@@ -186,7 +197,7 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                     plan.hit, plan.reason = True, "computed meanwhile by a concurrent pipeline"
             if entry is None:
                 _say(f"Running stage '{name}' ({plan.reason})")
-                inputs = _stage_inputs(spec, plan.parts, outputs)
+                inputs = _stage_inputs(spec, plan.parts, outputs, specs)
                 run_id = tracker.create_run(
                     name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"], **plan.parts.tags},
                     parent_id
@@ -196,6 +207,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                 except BaseException:
                     tracker.end(run_id, "FAILED")
                     raise
+    if plan.hit:  # an entry computed before the stage declared an output must not reach a stage that reads it
+        _check_outputs(spec, entry.out_dir, "has a cache entry without")
     seconds = time.perf_counter() - start
     metrics = dict(entry.manifest.get("metrics", {}))
     computed_by = entry.manifest.get("mlflow_run_id", "")
@@ -331,7 +344,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
     try:
         for plan in plans:
             results[plan.name] = _run_stage(plan, specs[plan.name], cfg, cache, tracker, parent_id, outputs, settings,
-                                            launch)
+                                            launch, specs)
             outputs[plan.name] = Path(results[plan.name]["output_dir"])
     except BaseException:
         tracker.end(parent_id, "FAILED")
@@ -435,7 +448,7 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
             _say(f"{rank.described}: stage '{name}' is in the cache, nothing to join")
             skipped.append(name)
             continue
-        inputs = _stage_inputs(specs[name], parts[name], {})
+        inputs = _stage_inputs(specs[name], parts[name], {}, specs)
         for i in specs[name].inputs:
             if i not in keys:
                 continue  # an optional input left out of this run

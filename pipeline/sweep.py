@@ -17,6 +17,8 @@ from pathlib import Path
 
 from hydra.experimental.callback import Callback
 
+from pipeline.mlflow_ops import MlflowOps
+
 SUMMARY_FILE = "summary.json"
 SWEEP_SUMMARY_FILE = "sweep_summary.json"
 
@@ -107,7 +109,6 @@ def summarize(sweep_dir: Path) -> dict:
 def prepare_tracking_store(uri: str, experiment: str) -> None:
     """Create the MLflow store's tables and the experiment before the jobs start: parallel jobs that
     each create a fresh sqlite store race on its schema migration and one of them fails."""
-    from pipeline.mlflow_ops import MlflowOps
 
     MlflowOps(uri, experiment)
 

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import PipelineError
+from pipeline.mlflow_ops import MlflowOps
 
 MAX_PARAM_CHARS = 500  # MLflow's classic limit on a param value; longer values are truncated
 MAX_KEY_CHARS = 250
@@ -58,8 +59,6 @@ class InProcessTracker:
     """MLflow calls in this process (cheap when MLflow is already imported, e.g. under pytest)."""
 
     def __init__(self, uri: str, experiment: str):
-        from pipeline.mlflow_ops import MlflowOps
-
         try:
             self._ops = MlflowOps(uri, experiment)
         except Exception as exc:

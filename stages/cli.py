@@ -1,14 +1,14 @@
 """The ``deepword`` command: one entry point for the pipeline and the tools around it.
 
     deepword run [hydra overrides...]     the pipeline (same as ``python -m pipeline``)
-    deepword score --gt ROOT --pred FILE  score WORD-format predictions (stages.evaluate.score)
+    deepword score --gt ROOT --pred FILE  score WORD-format predictions (deepword.scoring.score)
     deepword infer ...                    relations with the exported ONNX models (stages.inference.infer)
     deepword tune --dataset ROOT --out DIR  the detector's operating point chosen on your labelled images
     deepword show ROOT                    Fig. 5-style contact sheet of a dataset (stages.data.show)
     deepword import --from TOOL FILE --images DIR --out DATASET   labels from Label Studio, CVAT or COCO
-                                          into a WORD-style dataset (stages.labelling.importer)
+                                          into a WORD-style dataset (deepword.labelling.importer)
     deepword export-labels --to TOOL --pred FILE --out FILE       predictions as pre-annotations for
-                                          Label Studio or CVAT (stages.labelling.export)
+                                          Label Studio or CVAT (deepword.labelling.export)
 
 Each subcommand's module is imported only when it is chosen, so ``deepword infer`` never loads torch
 and ``deepword run`` keeps the engine's fast no-op path.
@@ -21,12 +21,12 @@ import sys
 
 COMMANDS = {
     "run": ("pipeline.cli", "run the pipeline with Hydra overrides"),
-    "score": ("stages.evaluate.score", "score WORD-format predictions against a dataset"),
+    "score": ("deepword.scoring.score", "score WORD-format predictions against a dataset"),
     "infer": ("stages.inference.infer", "relations of images or a dataset with the exported ONNX models"),
     "tune": ("stages.inference.tune", "choose the bundle's detector operating point on your labelled images"),
     "show": ("stages.data.show", "contact sheet of a WORD-style dataset"),
-    "import": ("stages.labelling.importer", "labels from Label Studio, CVAT or COCO into a WORD-style dataset"),
-    "export-labels": ("stages.labelling.export", "predictions as pre-annotations for Label Studio or CVAT"),
+    "import": ("deepword.labelling.importer", "labels from Label Studio, CVAT or COCO into a WORD-style dataset"),
+    "export-labels": ("deepword.labelling.export", "predictions as pre-annotations for Label Studio or CVAT"),
 }
 
 

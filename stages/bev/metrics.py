@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from shapely.geometry import Polygon
 
-from stages.format_3d import Box3D
+from deepword.format_3d import Box3D
 
 METRICS = ("center_err_m", "heading_err_deg", "corner_err_m", "bev_iou", "recall")
 

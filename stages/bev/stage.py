@@ -28,8 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.bev.figure import top_view
-from stages.bev.footprint import (
+from deepword.footprint import (
     FootprintPrior,
     estimate_record,
     fit_prior,
@@ -39,6 +38,10 @@ from stages.bev.footprint import (
     group_wheels,
     wheel_contacts,
 )
+from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
+from deepword.top_view import top_view
+from deepword.word_format import WHEEL, Dataset, Record, open_dataset, read_records
+from pipeline.outputs import StageInputs
 from stages.bev.metrics import (
     DETECTION_METRICS,
     METRICS,
@@ -48,9 +51,6 @@ from stages.bev.metrics import (
     match_frame,
     summarise,
 )
-from stages.evaluate.stage import predictions_file
-from stages.format_3d import Missing3DError, record_camera, record_objects_3d
-from stages.word_format import WHEEL, Dataset, Record, open_dataset, read_records
 
 NEEDED_BY = "the bev stage"
 BASELINE = "box_bottom"
@@ -149,7 +149,7 @@ def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict,
     return {f: fuse_frame(per_frame.get(f, []), fuse_radius) for f in {r.frame_id for r in test}}
 
 
-def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
+def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     bcfg, seed = cfg.bev, int(cfg.seed)
     out_dir = Path(out_dir)
     artifacts = out_dir / "artifacts"
@@ -170,20 +170,20 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
-    pred_dir = Path(inputs["evaluate"]) / "predictions"
     results, detection, notes, fused_by = {}, {}, [], {}
     (out_dir / "footprints").mkdir(exist_ok=True)
     for boxes in bcfg.box_sources:
-        methods = [m for m in bcfg.methods if predictions_file(pred_dir, boxes, m).is_file()]
+        predictions = {m: inputs.output("evaluate", "predictions", boxes=boxes, method=m) for m in bcfg.methods}
+        methods = [m for m in bcfg.methods if predictions[m].is_file()]
         for m in bcfg.methods:
             if m not in methods:
-                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {predictions_file(pred_dir, boxes, m).name}")
+                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {predictions[m].name}")
         if not methods:
             continue
         results[boxes] = {}
         for method in [BASELINE, *methods]:
             source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
-            preds = {r.image: r for r in read_records(predictions_file(pred_dir, boxes, source), root=ds.root,
+            preds = {r.image: r for r in read_records(predictions[source], root=ds.root,
                                                       allow_empty=True)}
             fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
             fused_by[(boxes, method)] = fused
@@ -198,7 +198,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
               "match_m": float(bcfg.match_m), "frames": len(truth)}
     (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
     (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
-    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg, end_to_end_method(inputs["evaluate"]))
+    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg, end_to_end_method(inputs.output("evaluate", "report")))
     for name in ("bev_report.md", "bev.json", PRIOR_FILE):
         shutil.copy(out_dir / name, artifacts / name)
     print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
@@ -283,10 +283,9 @@ def render_report(report: dict, bcfg) -> str:
     return "\n".join(lines) + "\n"
 
 
-def end_to_end_method(evaluate_dir: Path) -> str:
-    """The method evaluate headlined on detected boxes (the export bundle's end-to-end method; ``deepword`` for an
-    evaluate output from before it recorded one)."""
-    report = Path(evaluate_dir) / "report.json"
+def end_to_end_method(report: Path) -> str:
+    """The method evaluate headlined on detected boxes, from its ``report.json`` (the export bundle's end-to-end
+    method; ``deepword`` for an evaluate output from before it recorded one)."""
     return json.loads(report.read_text()).get("end_to_end", "deepword") if report.is_file() else "deepword"
 
 

@@ -1,6 +1,6 @@
 """The generator's camera rig: four fisheye cameras mounted on the ego, nominal or randomised.
 
-The camera models themselves live in ``stages.cameras``. Here the rig is built in the generator's ego
+The camera models themselves live in ``deepword.cameras``. Here the rig is built in the generator's ego
 frame (x forward, y left, z up, origin on the ground under the ego's centre; ``stages.data.synword``
 shifts it to the rear axle when it writes calibrations).
 
@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from stages.cameras import Camera, kannala_brandt_lens, mount_rotation, radial_poly_lens
+from deepword.cameras import Camera, kannala_brandt_lens, mount_rotation, radial_poly_lens
 
 # The shape of WoodScape's published radial polynomials relative to k1 (its front camera: k2/k1 = -0.094,
 # k3/k1 = 0.142, k4/k1 = -0.021), widened: the radial_poly family varies around real lenses.

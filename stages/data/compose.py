@@ -16,8 +16,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from deepword.word_format import SPLITS, DatasetError, Record, difficulty_subsets, write_records
+from stages.data.pool import pool_splits, take_images
 from stages.data.stats import make_splits, split_metrics
-from stages.word_format import SPLITS, DatasetError, Record, difficulty_subsets, write_records
+from stages.data.synword import generate
 
 SOURCE_KEY = "data_source"   # the record's extra key naming the source it came from
 KINDS = ("synword", "pool")
@@ -71,13 +73,11 @@ def build_source(name: str, scfg: dict, seed: int, out_dir: Path) -> tuple[list[
     """One source's records (written under ``out_dir``), its own train/val/test, and metrics about it."""
     kind = scfg.get("name")
     if kind == "synword":
-        from stages.data.synword import generate
 
         recs = generate(scfg, seed, out_dir, workers=scfg.get("workers"))
         own = make_splits(recs, scfg["split"], seed, int(scfg["max_easy_vehicles"]))
         return recs, {s: own[s] for s in SPLITS}, {}
     if kind == "pool":
-        from stages.data.pool import pool_splits, take_images
 
         recs, frames = take_images(scfg, seed, out_dir)
         return recs, pool_splits(recs, frames, float(scfg["val_share"])), {"images": float(len(recs)),

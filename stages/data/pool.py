@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.word_format import Record
+from deepword.word_format import Record
+from stages.data.synword import FrameWriter
 
 POOL_STREAM_TAG = 0x9001  # the draw's random order: its own stream, apart from every frame's
 
@@ -58,7 +59,6 @@ def take_images(pcfg: dict, seed: int, out_dir: Path, progress: bool = True) -> 
     """Render the pool's frames in draw order into ``out_dir`` until ``images`` images are kept; returns those
     images' records (draw order) and the frames they came from (draw order). Images of frames rendered beyond the
     take are deleted. Raises ``PoolTooSmall`` when the pool's frames hold fewer images."""
-    from stages.data.synword import FrameWriter
 
     n, frames = int(pcfg["images"]), int(pcfg["frames"])
     where = "data.sources.pool"

@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.overlay import contact_sheet, draw_relations
-from stages.word_format import CAMERAS, LABELS_FILE, Record, load_image, read_records
+from deepword.overlay import contact_sheet, draw_relations
+from deepword.word_format import CAMERAS, LABELS_FILE, Record, load_image, read_records
 
 
 def frame_sheet(root: Path, records: list[Record], n_frames: int, out_path: Path) -> Path:

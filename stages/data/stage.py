@@ -16,9 +16,11 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from deepword.word_format import LABELS_FILE, DatasetError, read_records, write_dataset_index, write_records
+from stages.data.compose import build_sources
 from stages.data.show import frame_sheet
 from stages.data.stats import make_splits, split_metrics
-from stages.word_format import LABELS_FILE, DatasetError, read_records, write_dataset_index, write_records
+from stages.data.synword import generate
 
 SHEET_FRAMES = 3
 
@@ -35,7 +37,6 @@ def run_heldout(cfg, inputs: dict, out_dir: Path) -> dict[str, float]:
 
 def build_dataset(dcfg: dict, seed: int, out_dir: Path) -> dict[str, float]:
     if dcfg.get("sources") is not None:   # several sources in one dataset (data=adapt): stages.data.compose
-        from stages.data.compose import build_sources
 
         records, splits, metrics = build_sources(dcfg, seed, out_dir)
         write_dataset_index(out_dir, out_dir, splits)
@@ -46,7 +47,6 @@ def build_dataset(dcfg: dict, seed: int, out_dir: Path) -> dict[str, float]:
                 frame_sheet(out_dir, own, SHEET_FRAMES, out_dir / "artifacts" / f"contact_sheet_{name}.png")
         return metrics
     if dcfg["name"] == "synword":
-        from stages.data.synword import generate
 
         records = generate(dcfg, seed, out_dir, workers=dcfg.get("workers"))
         if not records:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.geometry import containment
-from stages.word_format import SPLITS, VEHICLE, WHEEL, Record, difficulty_subsets, split_by_frame
+from deepword.geometry import containment
+from deepword.word_format import SPLITS, VEHICLE, WHEEL, Record, difficulty_subsets, split_by_frame
 
 WHOLLY_INSIDE = 0.99  # a wheel "inside" a vehicle box: at least this share of its area (Fig. 2's hard case)
 

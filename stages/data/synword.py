@@ -18,13 +18,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from deepword.progress import progress_lines
+from deepword.word_format import CAMERAS, VEHICLE, WHEEL, Record
 from stages.data.backdrop import GroundBank, cloud_field, draw_look, ground_texture
 from stages.data.camera import rig_cameras
 from stages.data.domain import DomainConfig
 from stages.data.render import build_tables, ego_vehicle, render_camera
 from stages.data.sensor import apply_sensor, draw_sensor, noise_bank
 from stages.data.world import SceneSampler
-from stages.word_format import CAMERAS, VEHICLE, WHEEL, Record
 
 
 class FrameGenerator:
@@ -225,8 +226,6 @@ class FrameWriter:
             self._pool.join()
 
     def write(self, frames, progress: bool = True) -> list[list[Record]]:
-        from stages.progress import progress_lines
-
         frames = [int(f) for f in frames]
 
         def shown(items):

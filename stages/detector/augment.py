@@ -13,8 +13,8 @@ import dataclasses
 
 import numpy as np
 
-from stages.colour import hue_rotation
-from stages.word_format import Record
+from deepword.colour import hue_rotation
+from deepword.word_format import Record
 
 
 def flip_record(record: Record) -> Record:

@@ -20,6 +20,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from deepword.detection.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image
+from deepword.word_format import Record, load_image
 from stages.detector.augment import (
     crop_or_pad,
     flip_image,
@@ -30,10 +32,8 @@ from stages.detector.augment import (
     resized_region,
     sensor_effects,
 )
-from stages.detector.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
 from stages.detector.targets import centernet_targets, ttfnet_box_targets
-from stages.word_format import Record, load_image
 
 
 def max_objects_of(records: list[Record]) -> int:

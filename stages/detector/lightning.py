@@ -10,14 +10,15 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from deepword.detection.average_precision import coco_average_precision
+from deepword.detection.letterbox import MEAN, STD, letterbox_for
+from deepword.word_format import Record
 from stages.detector.dataset import CenterNetDataset, max_objects_of
 from stages.detector.decode import decode_outputs
-from stages.detector.letterbox import MEAN, STD, letterbox_for
 from stages.detector.losses import detector_loss
-from stages.detector.metrics import coco_average_precision
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO, build_centernet
 from stages.detector.predict import detections_to_record
-from stages.word_format import Record
+from stages.training.loader_workers import usable_cores
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -159,7 +160,6 @@ class DetectorDataModule(L.LightningDataModule):
 
     def setup(self, stage: str) -> None:
         """Every image decoded and letterboxed once, before any loader worker is forked (``CenterNetDataset.preload``)."""
-        from stages.loader_workers import usable_cores
 
         threads = usable_cores()
         self.train_set.preload(threads)

@@ -1,7 +1,7 @@
 """What the detector still misses: recall of ground-truth boxes by size, occlusion and image-border truncation.
 
 AP says how good a detector is; this says where to look next. A ground-truth box counts as found when a
-detection of its class with score >= ``min_score`` matches it at IoU >= 0.5 (``stages.metrics.match_boxes``,
+detection of its class with score >= ``min_score`` matches it at IoU >= 0.5 (``deepword.metrics.match_boxes``,
 greedy by score, the evaluation's own matching). Groups, per class:
 
 - ``size``: the box's shorter side in original-image pixels (< 8, 8-16, 16-32, 32-64, >= 64);
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.geometry import pairwise_intersection
-from stages.metrics import match_boxes
-from stages.word_format import VEHICLE, Record
+from deepword.geometry import pairwise_intersection
+from deepword.metrics import match_boxes
+from deepword.word_format import VEHICLE, Record
 
 SIZE_EDGES = (0.0, 8.0, 16.0, 32.0, 64.0, math.inf)
 

@@ -10,13 +10,13 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from deepword.detection.letterbox import MEAN, STD
+from deepword.word_format import CLASS_NAMES
 from stages.detector.backbones import build_backbone
 from stages.detector.decode import decode_outputs
 from stages.detector.heads import CenterNetHeads
-from stages.detector.letterbox import MEAN, STD
 
 DOWN_RATIO = 4  # CenterNet's output stride
-CLASS_NAMES = ("vehicle", "wheel")  # index = WORD class_id
 WEIGHTS_FILE = "model.pt"
 CONFIG_FILE = "model.json"
 

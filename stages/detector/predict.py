@@ -8,37 +8,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.detector.letterbox import Letterbox, boxes_to_original, preprocess
-from stages.word_format import Record, load_image
+from deepword.detection.letterbox import preprocess
+from deepword.detection.records import detections_to_record
+from deepword.word_format import Record, load_image
+from stages.training.loader_workers import usable_cores
 
-if TYPE_CHECKING:  # torch loads only in predict_records: the onnxruntime path uses detections_to_record
+if TYPE_CHECKING:
     from stages.detector.model import CenterNet
-
-# Boxes thinner than this after clipping to the image (e.g. centred outside it) are not boxes; the WORD
-# format also needs x1 < x2 after its 2-decimal rounding.
-MIN_BOX_PX = 0.1
-
-
-def detections_to_record(detections: np.ndarray, source: Record, box: Letterbox, score_threshold: float) -> Record:
-    """(K, 6) decoded detections in network-input pixels -> a prediction record for ``source``'s image:
-    boxes in original image coordinates, clipped inside it, real scores, ids 0..N-1, no relations."""
-    det = detections[detections[:, 4] >= score_threshold]
-    xyxy = boxes_to_original(det[:, :4], box, source.width, source.height)
-    keep = (xyxy[:, 2] - xyxy[:, 0] >= MIN_BOX_PX) & (xyxy[:, 3] - xyxy[:, 1] >= MIN_BOX_PX)
-    xyxy, det = xyxy[keep], det[keep]
-    boxes = np.column_stack([xyxy, det[:, 4], det[:, 5], np.arange(len(det))]).reshape(-1, 7)
-    return Record(image=source.image, frame_id=source.frame_id, camera=source.camera, width=source.width,
-                  height=source.height, boxes=boxes, relations=[], wheel_pairs=[], scene=source.scene)
-
 
 def predict_records(net: CenterNet, root: str | Path, records: list[Record], input_width: int, input_height: int,
                     k: int, score_threshold: float, batch_size: int = 16) -> list[Record]:
     """Detect on every record's image (letterboxed to the input size) and return one prediction per record."""
     import torch
 
+    # imported here: it loads torch, which importing this module must not
     from stages.detector.decode import decode_outputs
     from stages.detector.model import DOWN_RATIO
-    from stages.loader_workers import usable_cores
 
     net.eval()
     device = next(net.parameters()).device

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.word_format import VEHICLE, Record, load_image
+from deepword.word_format import VEHICLE, Record, load_image
 
 GT_COLOUR = (255, 255, 255)
 CLASS_COLOURS = {VEHICLE: (0, 200, 255), 1: (255, 60, 200)}  # RGB: vehicles cyan-blue, wheels magenta

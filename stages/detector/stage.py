@@ -8,7 +8,7 @@ Outputs (paths relative to the stage directory):
   logs/metrics.csv                training curves (also in the stage's MLflow run when tracked)
   artifacts/detections_test.png   detections drawn on test images; artifacts/curves.png
   artifacts/misses_test.md        recall by box size, occlusion and border truncation (stages/detector/misses.py)
-                                  and what each kind of false positive costs AP@0.5 (stages/detector/ap_errors.py)
+                                  and what each kind of false positive costs AP@0.5 (deepword/detection/ap_errors.py)
   metrics.json                    the metrics returned to the engine
 """
 
@@ -21,13 +21,25 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from stages.word_format import open_dataset, write_records
+from deepword.detection.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
+from deepword.detection.average_precision import coco_average_precision
+from deepword.word_format import CLASS_NAMES, open_dataset, write_records
+from pipeline.tracking import stage_run_info
+from stages.detector.curves import plot_curves
+from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
+from stages.detector.predict import predict_records
+from stages.detector.render import write_detection_grid
+from stages.detector.warm_start import fine_tuning, load_start
+from stages.training.checkpoints import best_and_latest, weight_averaging
+from stages.training.init_source import INIT_INPUT
+from stages.training.loader_workers import loader_workers, usable_cores
+from stages.training.precision import BF16, resolve_precision
+from stages.training.replicas import check_replicas_agree
 
 
 def _loggers(out_dir: Path) -> list:
     from lightning.pytorch.loggers import CSVLogger, MLFlowLogger
 
-    from pipeline.tracking import stage_run_info
 
     loggers = [CSVLogger(out_dir, name="logs", version="")]
     info = stage_run_info()
@@ -39,7 +51,6 @@ def _loggers(out_dir: Path) -> list:
 
 def _threads(trainer_cfg: dict) -> int:
     """Intra-op threads: the trainer config's ``threads`` if set, else every core this process may use."""
-    from stages.loader_workers import usable_cores
 
     return int(trainer_cfg.get("threads") or usable_cores())
 
@@ -54,8 +65,6 @@ def _load_best_weights(net, checkpoint_path: str) -> None:
 def ap_metrics(predictions: list, truth: list, split: str, min_box_px: float) -> dict[str, float]:
     """``detector.<split>.{ap50,ap}.<class>`` with ground truth under ``min_box_px`` ignored, and, when that
     ignores anything, ``detector.<split>.{ap50_all,ap_all}.<class>`` over every box."""
-    from stages.detector.metrics import coco_average_precision
-    from stages.detector.model import CLASS_NAMES
 
     protocols = {"": min_box_px} if min_box_px <= 0 else {"": min_box_px, "_all": 0.0}
     out = {}
@@ -77,20 +86,10 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     import lightning as L
     import torch
 
-    from stages.checkpoints import best_and_latest, weight_averaging
-    from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
-    from stages.detector.curves import plot_curves
+    # imported here: it loads torch, which importing this module must not
     from stages.detector.lightning import CenterNetModule, CloseMosaic, DetectorDataModule
-    from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
     from stages.detector.model import build_centernet, model_config, save_detector
-    from stages.detector.predict import predict_records
-    from stages.detector.render import write_detection_grid
-    from stages.detector.warm_start import fine_tuning, load_start
-    from stages.init_source import INIT_INPUT
-    from stages.lightning_logs import lightning_progress, route_lightning_logs
-    from stages.loader_workers import loader_workers
-    from stages.precision import BF16, resolve_precision
-    from stages.replicas import check_replicas_agree
+    from stages.training.lightning_logs import lightning_progress, route_lightning_logs
 
     route_lightning_logs()
     out_dir = Path(out_dir)

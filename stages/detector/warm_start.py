@@ -1,4 +1,4 @@
-"""The detector's starting weights (the ``init`` group, stages/init_source.py; docs/stages.md, "init"): the stage's
+"""The detector's starting weights (the ``init`` group, stages/training/init_source.py; docs/stages.md, "init"): the stage's
 plan-time ``resolve`` hook, its fine-tuning budget, and the loading of the weights before training."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages.init_source import Network, check_fits, load_state, resolve_start, scaled_epochs
+from stages.training.init_source import Network, check_fits, load_state, resolve_start, scaled_epochs
 
 DETECTOR = Network("detector", "model.pt", "net.")
 
@@ -48,6 +48,7 @@ def check(path: Path, state: dict, cfg) -> None:
     """Raise unless ``state`` loads into the detector the config builds (key by key, shape by shape)."""
     from omegaconf import OmegaConf
 
+    # imported here: it loads torch, which importing this module must not
     from stages.detector.model import build_centernet, model_config
 
     expected = build_centernet(model_config(OmegaConf.to_container(cfg.detector, resolve=True))).state_dict()

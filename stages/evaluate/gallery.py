@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.metrics import score_image
-from stages.word_format import Record, load_image
+from deepword.metrics import score_image
+from deepword.overlay import contact_sheet, draw_relations
+from deepword.word_format import Record, load_image
 
 
 def wrong_wheels(gt: Record, pred: Record, min_box_px: float = 0.0, match_iou: float = 0.5) -> tuple[int, int]:
@@ -46,7 +47,6 @@ def _panel(rgb: np.ndarray, rec: Record, label: str, region: tuple[int, int, int
            height: int = 320) -> np.ndarray:
     import cv2
 
-    from stages.overlay import draw_relations  # Fig. 5 drawing lives in one place (stages/overlay.py)
 
     x1, y1, x2, y2 = region
     img = np.ascontiguousarray(draw_relations(rgb.copy(), rec)[y1:y2, x1:x2])
@@ -64,7 +64,6 @@ def write_gallery(out_dir: Path, root: Path, gts: list[Record], preds: dict[str,
     right and top to bottom."""
     import cv2
 
-    from stages.overlay import contact_sheet
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.evaluate.baselines import (
+from deepword.inference.runtime import NoDetectorError, OnnxDetector, bundle_rule, deepword_method
+from deepword.rules.baselines import (
     CoupleRule,
     SearchGrids,
     TrainImage,
@@ -28,10 +29,9 @@ from stages.evaluate.baselines import (
     fit_prior,
     prepare_train,
 )
-from stages.evaluate.fallback import FALLBACKS, ClaimFallback
-from stages.word_format import Dataset, Record, boxes_only, load_image, read_records
-
-DETECTOR_PREDICTIONS = "predictions_test.jsonl"
+from deepword.rules.fallback import FALLBACKS, ClaimFallback
+from deepword.word_format import Dataset, Record, boxes_only, load_image, read_records
+from pipeline.outputs import StageInputs
 
 
 class LastImage:
@@ -73,9 +73,9 @@ class EvalContext:
 
     cfg: object            # the `eval` config subtree
     seed: int
-    inputs: dict[str, Path]
+    inputs: StageInputs    # the stage's inputs, with their declared outputs (pipeline.outputs)
     dataset: Dataset
-    priors: object         # stages.priors.mixture.Priors
+    priors: object         # deepword.priors.Priors
     notes: list[str] = field(default_factory=list)
     fit_dataset: Dataset | None = None
     _shared: dict = field(default_factory=dict, repr=False)
@@ -106,8 +106,6 @@ class EvalContext:
         operating point, ``detected_boxes``) and the AP (every score, ``detections_for_ap``)."""
         if "export" not in self.inputs:
             return None
-        from stages.inference.runtime import NoDetectorError, OnnxDetector
-        from stages.word_format import load_image
 
         try:
             detector = OnnxDetector(self.inputs["export"], threads=int(self.cfg.get("threads", 1)))
@@ -127,12 +125,11 @@ class EvalContext:
 
 def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
     """The ``deepword`` (FP32) and ``deepword_int8`` rows: the exported relation model in onnxruntime, the
-    model that ships (``stages.inference.runtime``); needs the export stage's output."""
+    model that ships (``deepword.inference.runtime``); needs the export stage's output."""
 
     def factory(ctx: EvalContext):
         if "export" not in ctx.inputs:
             return None
-        from stages.inference.runtime import deepword_method
 
         return ctx.shared(name, lambda: deepword_method(name, ctx.inputs["export"], ctx.dataset.root,
                                                         load_rgb=ctx.load_rgb))
@@ -141,14 +138,13 @@ def deepword_onnx(name: str) -> Callable[[EvalContext], object | None]:
 
 
 def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
-    """A ``FALLBACKS`` row (stages/evaluate/fallback.py): its primary method's claims, and its fallback's for the
+    """A ``FALLBACKS`` row (deepword/rules/fallback.py): its primary method's claims, and its fallback's for the
     wheels the primary leaves unclaimed, as the bundle ships them (the fallback rule fitted on train by the export
     stage, the same fit as this stage's own row of that rule), so that the row is what ``deepword infer`` does."""
 
     def factory(ctx: EvalContext):
         if "export" not in ctx.inputs:
             return None
-        from stages.inference.runtime import bundle_rule
 
         primary, fallback = FALLBACKS[name]
         # the primary row's own instance: on boxes it has already predicted, its relations are reused
@@ -178,7 +174,8 @@ def gt_boxes(ctx: EvalContext) -> dict[str, Record]:
 def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     """Detections of the test split: from the exported detector in onnxruntime when the export stage is
     an input (the pipeline's DAG: what ships), at its operating point; else the detector stage's
-    ``predictions_test.jsonl`` (of the in-domain dataset only); None when the run has no detector."""
+    test predictions (its declared output ``predictions``, of the in-domain dataset only); None when the run has no
+    detector."""
     if "export" in ctx.inputs:
         if ctx.exported_detections is None:
             return None
@@ -186,7 +183,7 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
         return {image: detector.keep_operating_point(rec) for image, rec in every.items()}
     if "detector" not in ctx.inputs or ctx.fit_dataset is not None:
         return None
-    path = Path(ctx.inputs["detector"]) / DETECTOR_PREDICTIONS
+    path = ctx.inputs.output("detector", "predictions", split="test")
     records = read_records(path, root=ctx.dataset.root, allow_empty=True)
     return {r.image: boxes_only(r) for r in records}
 

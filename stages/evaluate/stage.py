@@ -11,11 +11,13 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
-from stages.evaluate.baselines import baseline_params
-from stages.evaluate.gallery import write_gallery
-from stages.evaluate.methods import BOX_SOURCES, FITTED_ON_TRAIN, METHODS, EvalContext, detections_for_ap
-from stages.evaluate.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
-from stages.evaluate.report import (
+from deepword.detection.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
+from deepword.inference.runtime import end_to_end_method, read_bundle
+from deepword.metrics import evaluated_wheel_ids, score_records
+from deepword.priors import load_priors
+from deepword.rules.baselines import BASELINES_FILE, baseline_params
+from deepword.scoring.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
+from deepword.scoring.report import (
     HEADLINE_METHOD,
     PAPER_TABLE3,
     flatten,
@@ -23,11 +25,11 @@ from stages.evaluate.report import (
     headline_metrics,
     render_markdown,
 )
-from stages.metrics import evaluated_wheel_ids, score_records
-from stages.priors.mixture import load_priors
-from stages.word_format import SUBSETS, open_dataset, write_records
+from deepword.word_format import CLASS_NAMES, SUBSETS, open_dataset, write_records
+from stages.detector.stage import ap_metrics
+from stages.evaluate.gallery import write_gallery
+from stages.evaluate.methods import BOX_SOURCES, FITTED_ON_TRAIN, METHODS, EvalContext, detections_for_ap
 
-BASELINES_FILE = "baselines.json"
 SHIFT_DIR = "shift"   # the held-out domain's predictions and report
 
 
@@ -36,13 +38,13 @@ def bundle_entries(inputs: dict[str, Path]) -> tuple[dict | None, str]:
     end-to-end method (``deepword`` without an export)."""
     if "export" not in inputs:
         return None, HEADLINE_METHOD
-    from stages.inference.runtime import end_to_end_method, read_bundle
 
     return read_bundle(inputs["export"]).get("detector"), end_to_end_method(inputs["export"])
 
 
 def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
-    """Where a method's predictions on a box source are written (the bev stage reads them back)."""
+    """Where a method's predictions on a box source are written: the stage's declared output ``predictions``
+    (conf/config.yaml: ``predictions/{boxes}_{method}.jsonl``, which the bev stage reads)."""
     return Path(pred_dir) / f"{boxes}_{method}.jsonl"
 
 
@@ -116,7 +118,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ecfg, seed = cfg.eval, int(cfg.seed)
     ds = open_dataset(inputs["data"])
     priors = load_priors(inputs["priors"])
-    ctx = EvalContext(cfg=ecfg, seed=seed, inputs=dict(inputs), dataset=ds, priors=priors)
+    ctx = EvalContext(cfg=ecfg, seed=seed, inputs=inputs, dataset=ds, priors=priors)
     methods = build_methods(ctx)
     min_px, iou = float(ecfg.min_box_px), float(ecfg.match_iou)
     results, errors, predictions = score_dataset(ctx, methods, out_dir / "predictions")
@@ -155,9 +157,6 @@ def score_heldout(ctx: EvalContext, heldout, out_dir: Path, fitted: dict[str, ob
     """Every row on the held-out domain's test set, with the baselines the in-domain rows were fitted with
     (``fitted``, on the in-domain train split): ``eval.shift.<boxes>.<method>.<subset>.<metric>`` and, with
     detections, ``detector.shift.{ap50,ap}.<class>``; ``out_dir`` gets the predictions and report.md/json."""
-    from stages.detector.ap_errors import ap_error_breakdown, append_breakdown, error_metrics
-    from stages.detector.model import CLASS_NAMES
-    from stages.detector.stage import ap_metrics
 
     shift_ctx = EvalContext(cfg=ctx.cfg, seed=ctx.seed, inputs=ctx.inputs, dataset=heldout, priors=ctx.priors,
                             fit_dataset=ctx.dataset)

@@ -1,7 +1,7 @@
 """The shipped relation model's scores on many subsets of each image's boxes, every box's crop through the
 backbone once.
 
-The operating-point search (``stages.export.operating_point``) runs the relation model on tens of thousands of
+The operating-point search (``deepword.operating_point.search``) runs the relation model on tens of thousands of
 subsets of the same val detections (22,836 on the quick profile), and onnxruntime ran the crop backbone, nearly
 all of the model's cost, for every kept box of every subset: × the ensemble's members × 2 with flip averaging.
 Yet a box's backbone features depend on its own crop and coordinates alone (``ShippedRelation.embed``); only
@@ -22,7 +22,8 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from stages.relation.inputs import ImageGraph, mirror_coords, mirrored, subgraph
+from deepword.inference.runtime import pad_graphs
+from deepword.relation_graph import ImageGraph, mirror_coords, mirrored, subgraph
 from stages.relation.model import mean_outputs
 
 
@@ -31,6 +32,7 @@ class EmbeddedBoxes:
     gives them for the subsets' graphs, from backbone features computed here once per box, member and view."""
 
     def __init__(self, net: torch.nn.Module, graphs: dict[str, ImageGraph], flip_average: bool, batch_size: int = 256):
+        # imported here: it loads torch, which importing this module must not
         from stages.export.onnx_export import ShippedEnsemble, shipped_relation
 
         shipped = shipped_relation(net.eval(), real_only=True)
@@ -54,8 +56,7 @@ class EmbeddedBoxes:
 
     def scores(self, images: Sequence[str], rows: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
         """(owner, couple, front, classes, cand, coords) for the graphs of ``graphs[images[i]]`` restricted to its
-        nodes ``rows[i]`` (a batch, padded to its largest subset by ``stages.inference.runtime.pad_graphs``)."""
-        from stages.inference.runtime import pad_graphs
+        nodes ``rows[i]`` (a batch, padded to its largest subset by ``deepword.inference.runtime.pad_graphs``)."""
 
         feed, classes = pad_graphs([subgraph(self.nodes[image], idx) for image, idx in zip(images, rows, strict=True)],
                                    0, crops=False)

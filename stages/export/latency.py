@@ -13,6 +13,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from deepword.inference.runtime import pad_graphs
+
 
 def median_ms(call: Callable[[int], object], runs: int, warmup: int,
               clock: Callable[[], float] = time.perf_counter) -> float:
@@ -41,7 +43,6 @@ def batches(feeds: Sequence[dict[str, np.ndarray]], batch: int) -> list[dict[str
 def graph_batches(graphs: Sequence, size: int, batch: int, n: int | None = None) -> list[dict[str, np.ndarray]]:
     """Feeds of ``batch`` consecutive graphs each (cycling to fill the last), padded to ``n`` objects or,
     by default, to the largest graph of each batch (how the dynamic model runs a batch of images)."""
-    from stages.inference.runtime import pad_graphs
 
     groups = [[graphs[(start + j) % len(graphs)] for j in range(batch)] for start in range(0, len(graphs), batch)]
     return [pad_graphs(group, size, n)[0] for group in groups]

@@ -7,14 +7,14 @@ that older embedded runtimes read (opset 17). The exported graphs are checked by
 
 What is exported:
 - relation: ``RelationGraph`` = the node tensor of docs/design.md §6 (uint8 crops -> [0, 1] RGB + four coordinate
-  planes, ``stages.relation.inputs.node_tensor``) + ``RelationNet``: the trained module, the PyTorch
+  planes, ``deepword.relation_graph.node_tensor``) + ``RelationNet``: the trained module, the PyTorch
   reference of parity and latency. What is exported is ``ShippedRelation``, the same function rewritten
   for inference speed (``FoldedBackbone``: the /255 and the first BatchNorm folded into the first
   convolution, the coordinate planes' share of it a small convolution on a grid; dynamic variant: the
   backbone runs on real objects only), with its tensors' shapes named (``name_object_dims``).
   Inputs crops (B, N, 3, S, S) uint8, coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs
   owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
-  (``stages.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
+  (``deepword.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
   throughout; ``dynamic``: batch and N dynamic. An ensemble (``relation.ensemble``) is exported as one graph
   that runs every member and averages their outputs (``ShippedEnsemble``).
@@ -31,9 +31,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from deepword.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
+from deepword.relation_graph import node_tensor
 from stages.export.channels_first import ChannelsFirstGraph
-from stages.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
-from stages.relation.inputs import node_tensor
 from stages.relation.model import RelationEnsemble, mean_outputs
 
 OPSET = 17
@@ -119,6 +119,7 @@ class FoldedBackbone(nn.Module):
 
     def __init__(self, backbone: nn.Module, input_size: int):
         super().__init__()
+        # imported here: it loads torch, which importing this module must not
         from stages.relation.model import ConvFC, ResNet18
 
         if isinstance(backbone, ConvFC):
@@ -147,6 +148,7 @@ class FoldedBackbone(nn.Module):
 
     @staticmethod
     def supports(backbone: nn.Module) -> bool:
+        # imported here: it loads torch, which importing this module must not
         from stages.relation.model import ConvFC, ResNet18
 
         return isinstance(backbone, ConvFC | ResNet18)
@@ -208,6 +210,7 @@ class DetectorGraph(nn.Module):
         self.net, self.k = net, k
 
     def forward(self, images):
+        # imported here: it loads torch, which importing this module must not
         from stages.detector.decode import decode_outputs
         from stages.detector.model import DOWN_RATIO
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.inference.runtime import DETECTOR_INPUT, RELATION_OUTPUTS, pad_graphs
+from deepword.inference.runtime import DETECTOR_INPUT, RELATION_OUTPUTS, pad_graphs
 
 
 class ParityError(RuntimeError):
@@ -75,6 +75,7 @@ def relation_parity(net, session, graphs: Sequence, input_size: int, threshold: 
     to ``n`` objects (None: each batch's largest graph)."""
     import torch
 
+    # imported here: it loads torch, which importing this module must not
     from stages.export.onnx_export import RelationGraph
 
     graph_net = RelationGraph(net).eval()
@@ -110,6 +111,7 @@ def detector_parity(net, session, images: np.ndarray, k: int, score_threshold: f
     """``images`` (I, 3, H, W) network inputs through the torch ``DetectorGraph`` and the ONNX session."""
     import torch
 
+    # imported here: it loads torch, which importing this module must not
     from stages.export.onnx_export import DetectorGraph
 
     graph_net = DetectorGraph(net, k).eval()

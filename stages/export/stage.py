@@ -15,7 +15,7 @@
    end-to-end method's pair_f1;
 6. registry: ``deepword-relation`` and ``deepword-detector`` (inside a pipeline run only).
 
-The output directory is the self-contained bundle ``stages.inference.runtime`` documents; reports go to
+The output directory is the self-contained bundle ``deepword.inference.runtime`` documents; reports go to
 ``artifacts/`` (``latency.md``, ``parity.json``, and with a detector ``operating_point.{md,png}``: what the
 operating-point search saw).
 """
@@ -29,18 +29,35 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.inference.runtime import (
+from deepword.detection.letterbox import preprocess
+from deepword.inference.runtime import (
     BUNDLE_FILE,
     DETECTOR_FILE,
     DETECTOR_INPUT,
     PRIORS_FILE,
     RELATION_FILES,
+    OnnxDetector,
     OnnxRelation,
     ort_session,
 )
-from stages.metrics import score_records
-from stages.paper import DSP_LATENCY
-from stages.word_format import SUBSETS, boxes_only, load_image, open_dataset
+from deepword.metrics import score_records
+from deepword.operating_point.report import write_operating_point_report
+from deepword.operating_point.search import (
+    OperatingPoint,
+    SubsetRelation,
+    end_to_end_pair_f1,
+    search_operating_point,
+)
+from deepword.paper import DSP_LATENCY
+from deepword.priors import load_priors
+from deepword.relation_graph import InputConfig, build_graph
+from deepword.rules.baselines import baseline_params, fit_couple_rule, fit_logic, prepare_train
+from deepword.rules.fallback import FALLBACKS, batch_with_fallback
+from deepword.word_format import SUBSETS, boxes_only, load_image, open_dataset
+from pipeline.tracking import stage_run_info
+from stages.export.latency import batches, cpu_ms, graph_batches, onnx_ms, torch_ms
+from stages.export.parity import detector_parity, relation_parity
+from stages.export.registry import register_models
 
 if TYPE_CHECKING:
     from stages.export.parity import ParityReport
@@ -126,7 +143,7 @@ def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: i
     ``lat.threads`` threads; PyTorch eager on the same feeds; the one-thread CPU time (the cost without
     the machine's other load). ``static_*``: the static model, every image padded to max_objects, as an
     embedded runtime with static shapes runs it. INT8: the dynamic INT8 model at batch 1."""
-    from stages.export.latency import cpu_ms, graph_batches, onnx_ms, torch_ms
+    # imported here: it loads torch, which importing this module must not
     from stages.export.onnx_export import RelationGraph
 
     threads, runs, warmup = int(lat.threads), int(lat.runs), int(lat.warmup)
@@ -152,8 +169,6 @@ def relation_latency(net, out_dir: Path, graphs: list, size: int, max_objects: i
 
 
 def detector_latency(det_net, out_dir: Path, images: np.ndarray, lat) -> dict[str, float]:
-    from stages.export.latency import batches, onnx_ms, torch_ms
-
     threads, runs, warmup = int(lat.threads), int(lat.runs), int(lat.warmup)
     feeds = [{DETECTOR_INPUT: images[i:i + 1]} for i in range(len(images))]
     session = ort_session(out_dir / DETECTOR_FILE, threads)
@@ -200,9 +215,8 @@ def export_detector_checked(det_net, det_cfg: dict, ds, test: list, out_dir: Pat
                             agree: float) -> tuple[ParityReport, dict[str, float]]:
     """detector.onnx: exported, checked against PyTorch (a miss fails the stage) and timed; returns its
     parity report and its ``export.detector.*`` metrics."""
-    from stages.detector.letterbox import preprocess
+    # imported here: it loads torch, which importing this module must not
     from stages.export.onnx_export import export_detector
-    from stages.export.parity import detector_parity
 
     export_detector(det_net, out_dir / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
                     det_cfg["max_detections"])
@@ -223,9 +237,6 @@ def end_to_end_entry(ds, e2e_cfg, min_box_px: float, seed: int) -> tuple[dict, o
     fallback rule (None for ``deepword``). The paper's IoU rule is fitted on the train split exactly as the evaluate
     stage fits its ``logic`` row (the same seeded sample and grids: ``export.end_to_end.fit`` follows ``eval``), so
     the bundle's ``deepword_then_logic`` is the evaluate stage's row and ``deepword infer`` needs no baselines."""
-    from stages.evaluate.baselines import baseline_params, fit_couple_rule, fit_logic, prepare_train
-    from stages.evaluate.fallback import FALLBACKS
-
     method = str(e2e_cfg.method)
     known = ["deepword", *FALLBACKS]
     if method not in known:
@@ -250,21 +261,11 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
                            tolerance: float = 1e-4, fallback=None, method_name: str = "") -> tuple[dict, dict, dict]:
     """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
     end-to-end pair_f1 of the exported DeepWORD model, with ``fallback``'s claims for the wheels it leaves unclaimed
-    when given (the bundle's end-to-end method; ``stages.export.operating_point``); returns ({class: threshold},
+    when given (the bundle's end-to-end method; ``deepword.operating_point.search``); returns ({class: threshold},
     {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
     relation model was exported from, each box is embedded once (``stages.export.embedded_boxes``), after a
     check that this gives the bundle's scores on every val image's whole graph within ``tolerance``. Writes what
-    the search saw to ``artifacts/operating_point.{md,png}`` (``stages.export.operating_point_report``)."""
-    from stages.evaluate.fallback import batch_with_fallback
-    from stages.export.operating_point import (
-        OperatingPoint,
-        SubsetRelation,
-        end_to_end_pair_f1,
-        search_operating_point,
-    )
-    from stages.export.operating_point_report import write_operating_point_report
-    from stages.inference.runtime import OnnxDetector
-
+    the search saw to ``artifacts/operating_point.{md,png}`` (``deepword.operating_point.report``)."""
     val = _limit(ds.subset("val"), op_cfg.images)
     if not val:
         raise ValueError("export: the val split is empty; the detector's operating point is chosen on it")
@@ -278,7 +279,13 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     images = {r.image: load_image(ds.root, r) for r in val}
     detections = [detector.detect(images[r.image], r) for r in val]
     shipped = OnnxRelation(out_dir, "dynamic", int(op_cfg.threads))
-    relation = SubsetRelation(shipped, detections, lambda rec: images[rec.image], network=net)
+    embed = None
+    if net is not None:
+        from stages.export.embedded_boxes import EmbeddedBoxes  # torch: loaded only when a network is given
+
+        def embed(graphs):
+            return EmbeddedBoxes(net, graphs, shipped.flip_average)
+    relation = SubsetRelation(shipped, detections, lambda rec: images[rec.image], embed=embed)
     split_metrics = {}
     if relation.embedded is not None:
         diff = relation.embedded.max_abs_diff_to(shipped.scores)
@@ -314,12 +321,9 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import torch
 
-    from pipeline.tracking import stage_run_info
+    # imported here: it loads torch, which importing this module must not
     from stages.detector.model import load_detector
     from stages.export.onnx_export import export_relation
-    from stages.export.parity import relation_parity
-    from stages.priors.mixture import load_priors
-    from stages.relation.inputs import InputConfig, build_graph
     from stages.relation.model import count_parameters
     from stages.relation.stage import load_network
 
@@ -392,7 +396,6 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     registered = {}
     tracking = stage_run_info()
     if tracking is not None and bool(ex.register):
-        from stages.export.registry import register_models
 
         models = {"relation": out_dir / RELATION_FILES["static"]}
         if det_net is not None:

@@ -1,2 +1,1 @@
-"""Inference with a shipped bundle (an export stage's output) in onnxruntime, without torch: the runtime the
-evaluate stage scores, and the ``deepword infer`` command."""
+"""The `deepword infer` and `deepword tune` commands: a pipeline run's artifacts found through MLflow (resolve), then the library's runtime (deepword.inference)."""

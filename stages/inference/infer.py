@@ -35,13 +35,37 @@ import argparse
 import json
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from stages.evaluate.fallback import FALLBACKS, ClaimFallback
-from stages.inference.runtime import METHOD_VARIANTS
-from stages.word_format import CAMERAS, DatasetError, Record, boxes_only, write_records
+from deepword.inference.footprints import (
+    CalibrationError,
+    beside_top_view,
+    calibration_camera,
+    camera_of,
+    footprints,
+    load_prior,
+    read_calibration_file,
+    write_frame_views,
+)
+from deepword.inference.runtime import (
+    METHOD_VARIANTS,
+    PRIORS_FILE,
+    NoDetectorError,
+    NoRuleError,
+    OnnxDetector,
+    bundle_method,
+    end_to_end_method,
+)
+from deepword.overlay import draw_relations
+from deepword.priors import load_priors
+from deepword.rules.baselines import BASELINES_FILE, baseline_from_params
+from deepword.rules.fallback import FALLBACKS, ClaimFallback
+from deepword.scoring.score import ScoreError, load_ground_truth
+from deepword.word_format import CAMERAS, DatasetError, Record, boxes_only, load_image, write_records
+from stages.inference.resolve import ResolveError, stage_dirs
 
 BASELINES = ("logic", "logic_plus", "prior")
 METHODS = (*METHOD_VARIANTS, *BASELINES, *FALLBACKS)
@@ -83,7 +107,6 @@ def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], d
 
 def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     """The export (and, for a baseline, evaluate) stage directories to use."""
-    from stages.inference.resolve import stage_dirs
 
     if args.export is not None:
         dirs = {"export": args.export}
@@ -98,20 +121,17 @@ def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
 def default_method(dirs: dict[str, Path], detect: bool) -> str:
     """``--method``'s default: the bundle's end-to-end method on detected boxes, DeepWORD on given boxes (where the
     rule it falls back on adds nothing: docs/detector.md)."""
-    from stages.inference.runtime import end_to_end_method
 
     return end_to_end_method(dirs["export"]) if detect else "deepword"
 
 
 def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, load_rgb):
     """An object with ``predict(record) -> Record`` for ``name`` (DeepWORD reads images with ``load_rgb``)."""
-    from stages.inference.runtime import NoRuleError, bundle_method
 
     if name in METHOD_VARIANTS or name in FALLBACKS:
         try:
             return bundle_method(name, dirs["export"], root, threads, load_rgb)
         except NoRuleError as exc:  # a bundle from before it held its fallback rule: the evaluate stage's fit of it
-            from stages.evaluate.stage import BASELINES_FILE
 
             if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
                 raise InferError(f"--method {name}: {exc}; pass --evaluate DIR (or a --run whose evaluate stage "
@@ -119,10 +139,6 @@ def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, loa
             primary, fallback = FALLBACKS[name]
             return ClaimFallback(build_method(primary, dirs, root, threads, load_rgb),
                                  build_method(fallback, dirs, root, threads, load_rgb), name)
-    from stages.evaluate.baselines import baseline_from_params
-    from stages.evaluate.stage import BASELINES_FILE
-    from stages.inference.runtime import PRIORS_FILE
-    from stages.priors.mixture import load_priors
 
     if "evaluate" not in dirs or not (dirs["evaluate"] / BASELINES_FILE).is_file():
         raise InferError(f"--method {name} needs the fitted baselines (the evaluate stage's {BASELINES_FILE}): "
@@ -137,13 +153,11 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Pat
     """The Fig. 5-style overlay; ``bev`` = (camera, estimates, contacts) adds the top view beside it."""
     import cv2
 
-    from stages.overlay import draw_relations
 
     path = out_dir / OVERLAY_DIR / (Path(pred.image).with_suffix("").as_posix().replace("/", "__") + ".png")
     path.parent.mkdir(parents=True, exist_ok=True)
     image = draw_relations(rgb, pred)
     if bev is not None:
-        from stages.bev.apply import beside_top_view
 
         image = beside_top_view(image, *bev)
     cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
@@ -153,16 +167,7 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Pat
 def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
     """Footprints for every prediction with a camera (``--calibration`` or the record's own); returns the
     predictions and {image: (camera, estimates, contacts)} for the overlays."""
-    from dataclasses import replace
 
-    from stages.bev.apply import (
-        CalibrationError,
-        calibration_camera,
-        camera_of,
-        footprints,
-        load_prior,
-        read_calibration_file,
-    )
 
     calibration, per_image = None, {}
     files = args.calibration or []
@@ -211,13 +216,8 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[li
 
 
 def infer(args) -> list[Record]:
-    from dataclasses import replace
-
-    from stages.word_format import load_image
-
     dirs = resolve_dirs(args, need_detector=args.detect or args.dataset is None)
     if args.dataset is not None:
-        from stages.evaluate.score import ScoreError, load_ground_truth
 
         try:
             root, records = load_ground_truth(args.dataset)
@@ -240,7 +240,6 @@ def infer(args) -> list[Record]:
 
     args.out.mkdir(parents=True, exist_ok=True)
     if detect:
-        from stages.inference.runtime import OnnxDetector
 
         detector = OnnxDetector(dirs["export"], args.threads)
         every = [detector.detect_every(rgb_of(r), r) for r in records]
@@ -259,7 +258,6 @@ def infer(args) -> list[Record]:
     for pred in preds[:overlays]:
         write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))
     if views:  # one instant's cameras fused into one top view (the bev stage's fusion), per frame overlaid
-        from stages.bev.apply import write_frame_views
 
         shown = {p.image for p in preds[:overlays]}
         write_frame_views(args.out, [p for p in preds if p.image in shown], views)
@@ -302,8 +300,6 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--detect goes with --dataset (loose images are always detected)")
     if args.frame and args.dataset is not None:
         p.error("--frame goes with loose images (a dataset's records carry their frame_id)")
-    from stages.inference.resolve import ResolveError
-    from stages.inference.runtime import NoDetectorError
 
     try:
         preds = infer(args)

@@ -3,7 +3,7 @@
     deepword tune --dataset ROOT --out DIR [--split val] [--run RUN_ID | --export DIR]
 
 The export stage chose the per-class score thresholds and minimum box sides on our synthetic val split
-(``stages.export.operating_point``). Other cameras, lenses and scenes score differently: a threshold that was
+(``deepword.operating_point.search``). Other cameras, lenses and scenes score differently: a threshold that was
 best there can keep too many boxes, or too few, on yours. With a few dozen labelled images (WORD format:
 ``labels.jsonl`` with relations, or a data stage output and ``--split``) this runs the bundle's detector on them,
 searches the same grid by the same criterion (end-to-end pair_f1 of the bundle's end-to-end method, or
@@ -24,9 +24,33 @@ import shutil
 import sys
 from pathlib import Path
 
-from stages.evaluate.fallback import FALLBACKS
-from stages.inference.runtime import METHOD_VARIANTS
-from stages.word_format import DatasetError, Record, boxes_only
+from deepword.inference.runtime import (
+    BUNDLE_FILE,
+    METHOD_VARIANTS,
+    NoDetectorError,
+    NoRuleError,
+    OnnxDetector,
+    OnnxRelation,
+    bundle_operating_point,
+    bundle_rule,
+    end_to_end_method,
+    read_bundle,
+)
+from deepword.operating_point.report import write_operating_point_report
+from deepword.operating_point.search import (
+    DEFAULT_GRID,
+    OperatingPoint,
+    SubsetRelation,
+    end_to_end_pair_f1,
+    search_operating_point,
+)
+from deepword.progress import ProgressCounter, progress_lines
+from deepword.rules.fallback import FALLBACKS, batch_with_fallback
+from deepword.scoring.score import ScoreError, load_ground_truth
+from deepword.word_format import DatasetError, Record, boxes_only, load_image
+from deepword.word_format.dataset import open_dataset
+from stages.inference.infer import resolve_dirs
+from stages.inference.resolve import ResolveError
 
 TUNED_METHODS = ("deepword", *FALLBACKS)
 
@@ -48,7 +72,6 @@ def parse_values(text: str, what: str) -> list[float]:
 def search_space(bundle: dict, grid: str | None, min_sides: list[str]) -> tuple[list[float], dict[str, list[float]]]:
     """(score thresholds, {class: minimum sides}): the options, else what the export stage searched (recorded in
     the bundle), else every threshold of the default grid and no size limit."""
-    from stages.export.operating_point import DEFAULT_GRID
 
     classes = list(bundle["detector"]["class_names"])
     searched = bundle["detector"].get("operating_point_search") or {}
@@ -64,14 +87,12 @@ def search_space(bundle: dict, grid: str | None, min_sides: list[str]) -> tuple[
 
 def tuning_records(dataset: Path, split: str | None) -> tuple[Path, list[Record]]:
     """The labelled images to tune on: a WORD-style dataset's records, or one split of a data stage output."""
-    from stages.evaluate.score import ScoreError, load_ground_truth
 
     if split is None:
         try:
             return load_ground_truth(dataset)
         except ScoreError as exc:
             raise TuneError(str(exc)) from None
-    from stages.word_format.dataset import open_dataset
 
     if not (dataset / "splits.json").is_file():
         raise TuneError(f"--split {split}: {dataset} has no splits.json (only a data stage output has splits); "
@@ -85,27 +106,6 @@ def tuning_records(dataset: Path, split: str | None) -> tuple[Path, list[Record]
 
 def tune(args) -> dict:
     """Run the search and write the tuned bundle; returns its ``tuned`` entry."""
-    from stages.evaluate.fallback import batch_with_fallback
-    from stages.export.operating_point import (
-        OperatingPoint,
-        SubsetRelation,
-        end_to_end_pair_f1,
-        search_operating_point,
-    )
-    from stages.export.operating_point_report import write_operating_point_report
-    from stages.inference.infer import resolve_dirs
-    from stages.inference.runtime import (
-        BUNDLE_FILE,
-        OnnxDetector,
-        OnnxRelation,
-        bundle_operating_point,
-        bundle_rule,
-        end_to_end_method,
-        read_bundle,
-    )
-    from stages.progress import ProgressCounter, progress_lines
-    from stages.word_format import load_image
-
     export = resolve_dirs(args, need_detector=True)["export"]
     bundle = read_bundle(export)
     if args.out.resolve() == Path(export).resolve():
@@ -130,7 +130,7 @@ def tune(args) -> dict:
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     pixels = {}
     detections = []
-    # a bar on a terminal, plain lines in a log (stages/progress.py)
+    # a bar on a terminal, plain lines in a log (deepword/progress.py)
     for truth in progress_lines(truths, len(truths), "detector", "image"):
         pixels[truth.image] = load_image(root, truth)
         detections.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
@@ -196,8 +196,6 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     args.evaluate = None   # resolve_dirs' baselines: not needed here
-    from stages.inference.resolve import ResolveError
-    from stages.inference.runtime import NoDetectorError, NoRuleError
 
     try:
         tuned = tune(args)

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.geometry import pairwise_distance_ratio
-from stages.word_format import VEHICLE, WHEEL, Record
+from deepword.geometry import pairwise_distance_ratio
+from deepword.word_format import VEHICLE, WHEEL, Record
 
 PAIR_TYPES = ("wheel_vehicle", "wheel_wheel")
 

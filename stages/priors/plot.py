@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.priors.mixture import Mixture1D, log_ratio
+from deepword.priors import Mixture1D, log_ratio
 from stages.priors.pairs import LabelledRatios
 
 TITLES = {"wheel_vehicle": "wheel-vehicle (A = vehicle, B = wheel)",

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.priors.mixture import BicFit, Priors, fit_mixture_bic, log_ratio, make_pair_prior
+from deepword.priors import BicFit, Priors, fit_mixture_bic, log_ratio, make_pair_prior
+from deepword.word_format import open_dataset
 from stages.priors.pairs import PAIR_TYPES, collect_ratios
 from stages.priors.plot import plot_priors
-from stages.word_format import open_dataset
 
 
 def _subsample(x: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:

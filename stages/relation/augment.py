@@ -17,7 +17,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from stages.colour import hue_rotation
+from deepword.colour import hue_rotation
 
 GREY_WEIGHTS = torch.tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
 
@@ -30,7 +30,7 @@ class AugmentConfig:
     saturation: float = 0.0            # saturation factor in 1 +- this
     channel_gain: float = 0.0          # per-channel gain (white balance) in 1 +- this
     hue: float = 0.0                   # a turn of the crop's colours about the grey axis in +- this share of the
-                                       # colour circle (0.5: any hue; stages.colour.hue_rotation)
+                                       # colour circle (0.5: any hue; deepword.colour.hue_rotation)
     grayscale: float = 0.0             # probability of a grey crop
     blur_prob: float = 0.0
     blur_sigma: tuple[float, float] = (0.5, 1.5)

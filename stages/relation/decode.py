@@ -1,4 +1,4 @@
-"""From relation scores to decisions in torch, and their docs/design.md §7 counts (``stages.metrics``).
+"""From relation scores to decisions in torch, and their docs/design.md §7 counts (``deepword.metrics``).
 
 Batched and vectorised so the Lightning module can score whole validation batches; the predictor uses
 the same functions on one image. Conventions: a decided ownership matrix is (B, N, N) bool with wheels
@@ -12,8 +12,8 @@ from dataclasses import fields
 import numpy as np
 import torch
 
-from stages.metrics import Counts, count_relations
-from stages.word_format import VEHICLE, WHEEL
+from deepword.metrics import Counts, count_relations
+from deepword.word_format import VEHICLE, WHEEL
 
 
 def type_masks(classes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -75,7 +75,7 @@ def decode_couples(scores: torch.Tensor, classes: torch.Tensor, cand: torch.Tens
 
 def relation_counts(pred_owner: torch.Tensor, owner: torch.Tensor, pred_couple: torch.Tensor,
                     couple: torch.Tensor, classes: torch.Tensor, evaluated: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The §7 counts of a batch's decisions (``stages.metrics.count_relations``, node indices standing for box
+    """The §7 counts of a batch's decisions (``deepword.metrics.count_relations``, node indices standing for box
     ids) over its evaluated wheels, ``evaluated`` (B, N): the wheels the evaluation scores, so validation
     selects the model on the metric the report gives. ``owner``/``couple`` are the symmetric 0/1 target
     matrices of ``inputs.relation_targets``."""
@@ -105,5 +105,5 @@ def _upper_pairs(symmetric: np.ndarray) -> list[tuple[int, int]]:
 
 
 def metrics_from_counts(c: dict[str, float]) -> dict[str, float]:
-    """Percentages of summed ``relation_counts`` (``stages.metrics.Counts.percentages``)."""
+    """Percentages of summed ``relation_counts`` (``deepword.metrics.Counts.percentages``)."""
     return Counts(**{k: int(v) for k, v in c.items()}).percentages()

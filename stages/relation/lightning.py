@@ -10,7 +10,8 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 from torchmetrics import MeanMetric, Metric
 
-from stages.metrics import Counts
+from deepword.metrics import Counts
+from deepword.relation_graph import SplitInputs, mirror_coords, node_tensor
 from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
     decode_couples,
@@ -18,7 +19,6 @@ from stages.relation.decode import (
     metrics_from_counts,
     relation_counts,
 )
-from stages.relation.inputs import SplitInputs, mirror_coords, node_tensor
 from stages.relation.losses import relation_loss
 from stages.relation.model import ModelConfig, RelationNet, pair_geometry
 from stages.relation.warp import BoxWarpConfig, random_box_warp
@@ -96,7 +96,7 @@ def collate_graphs(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tens
 
 
 class RelationDataModule(L.LightningDataModule):
-    """``num_workers`` loader processes for the training graphs (``stages.loader_workers``: none on a CPU, several
+    """``num_workers`` loader processes for the training graphs (``stages.training.loader_workers``: none on a CPU, several
     on a GPU, where the crops' augmentation in the training process, ~4-6 ms an image on one core, would bound
     the epoch); validation has no augmentation and stays in the training process."""
 
@@ -229,6 +229,7 @@ class RelationModule(L.LightningModule):
 def score_split(module: RelationModule | list[RelationModule], split: SplitInputs, batch_size: int) -> dict[str, float]:
     """The relation metrics (percent) of a trained module on a split, in eval mode, on the CPU; of a list of
     modules (an ensemble's members), deciding on the mean of their scores."""
+    # imported here: it loads torch, which importing this module must not
     from stages.relation.model import mean_outputs
 
     modules = [m.eval() for m in (module if isinstance(module, list) else [module])]

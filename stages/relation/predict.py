@@ -9,18 +9,16 @@ training data the left wheel (smaller centre x) is listed first and roles stay e
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from stages.relation.inputs import ImageGraph, InputConfig, build_graph, node_tensor
-from stages.word_format import Record
-
-# torch is imported inside the methods that run the network: ``prediction_record`` (and the class) stay
-# importable by the onnxruntime inference path, which must not load torch.
+from deepword.inference.decode import prediction_record
+from deepword.priors import load_priors
+from deepword.relation_graph import ImageGraph, InputConfig, build_graph, node_tensor
+from deepword.word_format import Record
 
 
 class RelationPredictor:
@@ -38,7 +36,7 @@ class RelationPredictor:
 
     @classmethod
     def from_dirs(cls, relation_dir: str | os.PathLike, priors_dir: str | os.PathLike) -> RelationPredictor:
-        from stages.priors.mixture import load_priors
+        # imported here: it loads torch, which importing this module must not
         from stages.relation.stage import load_network
 
         net, meta = load_network(Path(relation_dir))
@@ -70,6 +68,7 @@ class RelationPredictor:
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
+        # imported here: it loads torch, which importing this module must not
         from stages.relation.decode import decode_couples, decode_owners
 
         out = []
@@ -87,22 +86,3 @@ class RelationPredictor:
 
     def predict(self, rec: Record, rgb: np.ndarray) -> Record:
         return self.predict_many([rec], lambda _: rgb)[0]
-
-
-def prediction_record(rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarray, front: np.ndarray,
-                      has_roles: bool) -> Record:
-    """The record with its boxes unchanged and the decided relations and couples (wheel rows, vehicle
-    columns in ``pred_owner``; symmetric ``pred_couple``; ``front`` probabilities)."""
-    ids = rec.box_ids
-    n = len(ids)
-    relations = []
-    for w, v in zip(*np.nonzero(pred_owner[:n, :n]), strict=True):
-        role = ("front" if front[w] > 0.5 else "rear") if has_roles else None
-        relations.append((int(ids[v]), int(ids[w]), role))
-    pairs = []
-    centre_x = (rec.xyxy[:, 0] + rec.xyxy[:, 2]) / 2 if n else np.zeros(0)
-    for a, b in zip(*np.nonzero(np.triu(pred_couple[:n, :n], 1)), strict=True):
-        rear_first = front[a] <= front[b] if has_roles else centre_x[a] <= centre_x[b]
-        pairs.append((int(ids[a]), int(ids[b])) if rear_first else (int(ids[b]), int(ids[a])))
-    return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs))
-

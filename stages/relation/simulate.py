@@ -22,8 +22,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from stages.geometry import pairwise_iou
-from stages.word_format import Record
+from deepword.geometry import pairwise_iou
+from deepword.word_format import Record
 
 MATCH_IOU = 0.5       # a false positive must not pass for a label at the evaluation's matching IoU
 MIN_SIDE_PX = 2.0     # a perturbed box keeps at least this size

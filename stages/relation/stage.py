@@ -21,16 +21,20 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from stages.checkpoints import best_and_latest, weight_averaging
-from stages.init_source import INIT_INPUT
-from stages.lightning_logs import lightning_progress, route_lightning_logs
-from stages.precision import BF16, FP32, resolve_precision
+from deepword.priors import load_priors
+from deepword.relation_graph import InputConfig, SplitInputs, build_split, check_object_counts
+from deepword.word_format import load_image, open_dataset
+from pipeline.tracking import stage_run_info
 from stages.relation.augment import AugmentConfig
-from stages.relation.inputs import InputConfig, SplitInputs, build_split, check_object_counts
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
 from stages.relation.warm_start import fine_tuning, start_states
 from stages.relation.warp import BoxWarpConfig
-from stages.word_format import load_image, open_dataset
+from stages.training.checkpoints import best_and_latest, weight_averaging
+from stages.training.init_source import INIT_INPUT
+from stages.training.lightning_logs import lightning_progress, route_lightning_logs
+from stages.training.loader_workers import loader_workers
+from stages.training.precision import BF16, FP32, resolve_precision
+from stages.training.replicas import check_replicas_agree
 
 WEIGHTS_FILE = "relation.pt"
 CONFIG_FILE = "relation.json"
@@ -60,7 +64,6 @@ def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, ca
 
 def _tracking_logger():
     """Lightning's MLFlowLogger attached to the stage's MLflow child run, or None outside the pipeline."""
-    from pipeline.tracking import stage_run_info
 
     info = stage_run_info()
     if info is None:
@@ -74,7 +77,7 @@ def _tracking_logger():
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import torch
 
-    from stages.priors.mixture import load_priors
+    # imported here: it loads torch, which importing this module must not
     from stages.relation.curves import plot_curves
     from stages.relation.lightning import score_split
     from stages.relation.model import ModelConfig, RelationEnsemble, count_parameters, size_mb
@@ -168,10 +171,9 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     import torch
     from lightning.pytorch.callbacks import EarlyStopping
 
-    from stages.loader_workers import loader_workers
+    # imported here: it loads torch, which importing this module must not
     from stages.relation.curves import CurveHistory
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
-    from stages.replicas import check_replicas_agree
 
     rel, tr = cfg.relation, cfg.trainer
     plain = plain_config(rel)
@@ -251,6 +253,7 @@ def load_network(stage_dir: str | os.PathLike):
     its relation.json."""
     import torch
 
+    # imported here: it loads torch, which importing this module must not
     from stages.relation.model import ModelConfig, RelationEnsemble, RelationNet
 
     stage_dir = Path(stage_dir)

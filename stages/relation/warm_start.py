@@ -1,4 +1,4 @@
-"""The relation network's starting weights (the ``init`` group, stages/init_source.py; docs/stages.md, "init"):
+"""The relation network's starting weights (the ``init`` group, stages/training/init_source.py; docs/stages.md, "init"):
 the stage's plan-time ``resolve`` hook, its fine-tuning budget, and the weights each ensemble member starts from.
 
 A relation stage ships one network or an ensemble (``relation.ensemble``). Weights of as many members start
@@ -10,7 +10,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages.init_source import InitError, Network, check_fits, load_state, resolve_start, scaled_epochs
+from stages.training.init_source import (
+    InitError,
+    Network,
+    check_fits,
+    load_state,
+    resolve_start,
+    scaled_epochs,
+)
 
 RELATION = Network("relation", "relation.pt", "model.")
 MEMBERS = "members."
@@ -72,6 +79,7 @@ def _group_of(path: Path):
 
 def check(path: Path, state: dict, cfg) -> None:
     """Raise unless every member's weights load into the relation network the config builds."""
+    # imported here: it loads torch, which importing this module must not
     from stages.relation.model import ModelConfig, RelationNet
 
     expected = RelationNet(ModelConfig.from_cfg(cfg.relation)).state_dict()

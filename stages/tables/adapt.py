@@ -18,9 +18,9 @@ import statistics
 from collections import Counter
 from pathlib import Path
 
+from deepword.scoring.report import metric_name
 from pipeline.runs import RunRecord
 from pipeline.tables import Table, save_figure
-from stages.evaluate.report import metric_name
 
 ADAPT_EXPERIMENT = "adapt"
 RECIPE_PARAM = "adapt.recipe"

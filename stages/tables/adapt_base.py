@@ -16,6 +16,7 @@ import os
 import sys
 
 from pipeline.runs import RunRecord, load_runs
+from pipeline.tracker import flatten_params
 from stages.tables.rows import CONF, NOT_DEFINING
 
 DEFINING = ("relation.", "detector.", "data.")
@@ -30,7 +31,6 @@ def default_definition(profile: str) -> dict[str, str]:
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
 
-    from pipeline.tracker import flatten_params
 
     GlobalHydra.instance().clear()
     try:

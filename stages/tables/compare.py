@@ -5,7 +5,7 @@ Each table row is a configuration given by its Hydra overrides (``rows.py``); a 
 logged parameters equal the row's composed configuration (``RowMatcher``), whichever command produced it
 (a sweep of ``make ablations`` or a single run); the newest such run is used. Writes
 ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's,
-``stages.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed), ``bev.{md,csv}`` (bird's-eye-view
+``deepword.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed), ``bev.{md,csv}`` (bird's-eye-view
 footprints per method, docs/bev.md, of the newest run with them), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
 scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
 artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment, and with
@@ -23,13 +23,13 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
+from deepword import paper
+from deepword.scoring.report import metric_name
+from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
 from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
-from stages import paper
-from stages.evaluate.report import metric_name
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
-from stages.word_format import SUBSETS
 
 COMPARISON_TAG = "kind"
 COMPARISON_KIND = "comparison"

@@ -8,10 +8,10 @@ import shutil
 
 import pytest
 
+from deepword.paper import TABLE3_ACCURACY as PAPER_TABLE3
 from pipeline.mlflow_ops import MlflowOps
 from pipeline.tables import paired_difference
 from pipeline.tracker import flatten_params
-from stages.paper import TABLE3_ACCURACY as PAPER_TABLE3
 from stages.tables.compare import compare, main
 from tests.experiments.pipeline_runs import compose_config
 from tests.sqlite_store import fresh_store

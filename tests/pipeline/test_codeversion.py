@@ -2,12 +2,11 @@
 
 import sys
 
-from pipeline.codeversion import code_version
-from pipeline.keys import PROJECT_PACKAGES
+from pipeline.codeversion import clear_memo, code_version
 
 
 def test_version_covers_package_and_transitive_project_imports_without_importing(toy):
-    v = code_version(f"{toy.package}.alpha.stage", PROJECT_PACKAGES)
+    v = code_version(f"{toy.package}.alpha.stage", frozenset({toy.package, "pipeline"}))
     p = toy.package
     assert set(v.files) == {
         f"{p}/__init__.py", f"{p}/alpha/__init__.py", f"{p}/alpha/stage.py", f"{p}/common.py",
@@ -26,7 +25,7 @@ def test_version_changes_with_a_transitively_imported_module_only(toy):
 
 def test_top_level_module_stage_is_hashed_alone(toy):
     (toy.root / f"{toy.package}_solo.py").write_text("import json\n\ndef run(cfg, inputs, out_dir):\n    return {}\n")
-    v = code_version(f"{toy.package}_solo", PROJECT_PACKAGES)
+    v = code_version(f"{toy.package}_solo", frozenset({toy.package, "pipeline"}))
     assert set(v.files) == {f"{toy.package}_solo.py"}
 
 
@@ -37,3 +36,27 @@ def test_whole_stage_package_and_function_level_relative_imports_are_followed(to
     files = code_version(f"{toy.package}.gamma.stage").files
     assert f"{toy.package}/gamma/helpers.py" in files, "every file of the stage's package counts"
     assert f"{toy.package}/unused.py" in files
+
+
+def test_a_change_in_a_library_package_changes_the_key_only_when_code_packages_names_it(toy):
+    """A stage's code version follows the project modules it imports in the packages ``pipeline.code_packages``
+    names (docs/engine.md): a library package beside the stages must be named there."""
+    from pipeline.dag import load_stages
+    from pipeline.keys import key_parts
+
+    lib = f"{toy.package}_lib"
+    (toy.root / lib).mkdir()
+    (toy.root / lib / "__init__.py").write_text("")
+    (toy.root / lib / "scaling.py").write_text("FACTOR = 2\n")
+    toy.edit("gamma/stage.py", f"from {lib}.scaling import FACTOR\n\ndef run(cfg, inputs, out_dir):\n    return {{}}\n")
+
+    def key(**dotted):
+        cfg = toy.config(**dotted)
+        return key_parts(load_stages(cfg)["c"], cfg, {}).key
+
+    named = {"pipeline.code_packages": [toy.package, lib, "pipeline"]}
+    before, before_unnamed = key(**named), key()
+    (toy.root / lib / "scaling.py").write_text("FACTOR = 3\n")
+    clear_memo()
+    assert key(**named) != before, "a change in a named library package changes the stage's key"
+    assert key() == before_unnamed, "a package code_packages does not name is not followed"

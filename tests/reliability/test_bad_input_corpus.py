@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stages.word_format import (
+from deepword.word_format import (
     DatasetError,
     check_image_files,
     image_size,

@@ -11,8 +11,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from deepword.word_format import DatasetError
 from stages.data.stage import run as data_stage
-from stages.word_format import DatasetError
 from tests.reliability.make_corpus import CASES, CORPUS, Dataset, write_dataset
 
 REPO = Path(__file__).resolve().parents[2]

@@ -9,10 +9,11 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from stages.evaluate.methods import DETECTOR_PREDICTIONS, EvalContext, detected_boxes
-from stages.word_format import Dataset as WordDataset
-from stages.word_format import DatasetError, read_records
+from deepword.word_format import Dataset as WordDataset
+from deepword.word_format import DatasetError, read_records
+from stages.evaluate.methods import EvalContext, detected_boxes
 from tests.reliability.make_corpus import Dataset, write_dataset
+from tests.stage_inputs import stage_inputs
 
 
 def context(tmp_path: Path, prediction_lines: list[str]) -> EvalContext:
@@ -20,9 +21,10 @@ def context(tmp_path: Path, prediction_lines: list[str]) -> EvalContext:
     records = read_records(root / "labels.jsonl")
     detector = tmp_path / "detector"
     detector.mkdir()
-    (detector / DETECTOR_PREDICTIONS).write_text("".join(line + "\n" for line in prediction_lines))
+    inputs = stage_inputs("evaluate", {"detector": detector})
+    inputs.output("detector", "predictions", split="test").write_text("".join(line + "\n" for line in prediction_lines))
     ds = WordDataset(root=root, records=records, splits={"test": [r.image for r in records]})
-    return EvalContext(cfg=OmegaConf.create({}), seed=0, inputs={"detector": detector}, dataset=ds, priors=None)
+    return EvalContext(cfg=OmegaConf.create({}), seed=0, inputs=inputs, dataset=ds, priors=None)
 
 
 def prediction(**changes) -> str:
@@ -55,7 +57,7 @@ def test_bad_prediction_line_is_refused_naming_file_line_and_field(tmp_path, bad
     with pytest.raises(DatasetError) as info:
         detected_boxes(ctx)
     err = info.value
-    assert err.file.endswith(DETECTOR_PREDICTIONS) and err.line == 2 and err.field == field
+    assert err.file.endswith("predictions_test.jsonl") and err.line == 2 and err.field == field
     assert message in err.message
 
 
@@ -65,7 +67,7 @@ def test_bad_prediction_line_is_refused_naming_file_line_and_field(tmp_path, bad
     (prediction(image="images/rear/000099.png"), "image", "not an image of the ground-truth dataset"),
 ])
 def test_score_command_refuses_bad_predictions_with_exit_2_and_location(tmp_path, capsys, bad_line, field, message):
-    from stages.evaluate.score import main as score_main
+    from deepword.scoring.score import main as score_main
 
     root = write_dataset(Dataset(), tmp_path / "data")
     pred = tmp_path / "pred.jsonl"

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.word_format import VEHICLE, WHEEL, Record, write_records
+from deepword.word_format import VEHICLE, WHEEL, Record, write_records
 
 W, H = 160, 120
 VEHICLE_W, VEHICLE_H, WHEEL_PX = 36, 26, 9

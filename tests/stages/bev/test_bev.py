@@ -6,18 +6,18 @@ import math
 import numpy as np
 import pytest
 
-from stages.bev.footprint import (
+from deepword.footprint import (
     FootprintPrior,
     estimate_record,
     fit_prior,
     footprints_from_contacts,
     fuse_frame,
 )
+from deepword.format_3d import Box3D, Missing3DError, record_camera, record_objects_3d
+from deepword.word_format import Record, read_records, write_records
 from stages.bev.metrics import TrueVehicle, match_frame, summarise
 from stages.bev.stage import check_3d
 from stages.data.camera import nominal_camera
-from stages.format_3d import Box3D, Missing3DError, record_camera, record_objects_3d
-from stages.word_format import Record, read_records, write_records
 
 LEFT = {"K": {"fx": 184.0, "fy": 184.0, "cx": 319.0, "cy": 239.5}, "D": [0.021, -0.0031, 0.0003, -0.00001],
         "fov_deg": 190, "position": [0.85, 1.05, 1.0], "yaw_deg": 90.0, "pitch_deg": 38.0}
@@ -147,8 +147,8 @@ def test_the_detected_top_view_shows_the_method_evaluate_headlined(tmp_path):
 
     from stages.bev.stage import end_to_end_method
 
-    assert end_to_end_method(tmp_path) == "deepword"
+    assert end_to_end_method(tmp_path / "report.json") == "deepword"
     (tmp_path / "report.json").write_text(json.dumps({"results": {}}))
-    assert end_to_end_method(tmp_path) == "deepword"
+    assert end_to_end_method(tmp_path / "report.json") == "deepword"
     (tmp_path / "report.json").write_text(json.dumps({"results": {}, "end_to_end": "deepword_then_logic"}))
-    assert end_to_end_method(tmp_path) == "deepword_then_logic"
+    assert end_to_end_method(tmp_path / "report.json") == "deepword_then_logic"

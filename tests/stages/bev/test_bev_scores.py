@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from stages.bev.footprint import Estimate, footprints_from_contacts, fuse_frame, group_confidence
+from deepword.footprint import Estimate, footprints_from_contacts, fuse_frame, group_confidence
+from deepword.format_3d import Box3D
 from stages.bev.metrics import (
     DIST_THRESHOLDS,
     Scored,
@@ -19,7 +20,6 @@ from stages.bev.metrics import (
     summarise,
 )
 from stages.bev.stage import detection_subsets, flatten
-from stages.format_3d import Box3D
 from tests.stages.bev.test_bev import PRIOR, _camera, _contacts, _record
 
 BCFG = OmegaConf.create({"max_range_m": 10.0, "range_bins": [[0, 5], [5, 10], [10, 20]]})

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from stages.bev.apply import calibration_camera, frame_top_view, write_frame_views
-from stages.bev.figure import CAMERA_RGB, LEGEND_PX, TITLE_PX, TRUE_RGB, top_view
-from stages.bev.footprint import footprints_from_contacts
+from deepword.footprint import footprints_from_contacts
+from deepword.format_3d import Box3D
+from deepword.inference.footprints import calibration_camera, frame_top_view, write_frame_views
+from deepword.top_view import CAMERA_RGB, LEGEND_PX, TITLE_PX, TRUE_RGB, top_view
 from stages.data.camera import nominal_camera
-from stages.format_3d import Box3D
 from stages.inference.infer import InferError, add_footprints, parser
 from tests.stages.bev.test_bev import LEFT, PRIOR, _camera, _contacts, _record
 

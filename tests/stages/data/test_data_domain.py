@@ -9,12 +9,12 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from deepword.word_format import VEHICLE, WHEEL
 from stages.data.backdrop import draw_look
 from stages.data.domain import AXES, DomainConfig
 from stages.data.sensor import draw_sensor
 from stages.data.synword import FrameGenerator, generate, scene_families
 from stages.data.world import SceneSampler
-from stages.word_format import VEHICLE, WHEEL
 
 CONF = str(Path(__file__).resolve().parents[3] / "conf")
 OBJECT_AXES = ("bodies", "paints", "materials", "wheels", "props")
@@ -121,8 +121,8 @@ def test_a_bad_domain_config_names_the_field(domains, axis, value, message):
 
 
 def test_the_held_out_stage_puts_every_image_in_its_test_split(domains, tmp_path):
+    from deepword.word_format import open_dataset
     from stages.data.stage import run_heldout
-    from stages.word_format import open_dataset
 
     _, heldout = domains
     cfg = OmegaConf.create({"shift": {"data": dict(heldout, frames=4)}, "seed": 1})

@@ -2,10 +2,10 @@
 
 import numpy as np
 
+from deepword.geometry import containment
+from deepword.word_format import VEHICLE, WHEEL, Record, read_records, write_records
 from stages.data.stats import boxes_meet_at_wheel, make_splits, multi_box_wheels, split_metrics
 from stages.data.synword import FrameGenerator
-from stages.geometry import containment
-from stages.word_format import VEHICLE, WHEEL, Record, read_records, write_records
 from tests.stages.data.data_helpers import synword_cfg
 
 

@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
+from deepword.word_format import CAMERAS
 from stages.data.camera import rig_cameras
-from stages.word_format import CAMERAS
 from tests.stages.data.data_helpers import synword_cfg
 
 

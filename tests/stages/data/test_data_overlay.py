@@ -3,9 +3,9 @@
 import cv2
 import numpy as np
 
+from deepword.overlay import COUPLE_RGB, FRONT_RGB, REAR_RGB, contact_sheet, draw_relations
+from deepword.word_format import Record
 from stages.data.show import main as show_main
-from stages.overlay import COUPLE_RGB, FRONT_RGB, REAR_RGB, contact_sheet, draw_relations
-from stages.word_format import Record
 
 
 def _record():
@@ -42,7 +42,7 @@ def test_contact_sheet_tiles_and_resizes():
 
 def test_show_cli_writes_a_sheet(synword_sample, tmp_path):
     root, records = synword_sample
-    from stages.word_format import write_records
+    from deepword.word_format import write_records
 
     write_records(root / "labels.jsonl", records)
     out = tmp_path / "sheet.png"

@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
+from deepword.word_format import SPLITS, DatasetError, open_dataset
 from stages.data.compose import build_sources, train_repeats
 from stages.data.pool import PoolTooSmall, draw_order, pool_splits, take_images, val_positions
 from stages.data.stage import build_dataset
-from stages.word_format import SPLITS, DatasetError, open_dataset
 from tests.stages.data.data_helpers import CONF, synword_cfg
 
 SEED = 7

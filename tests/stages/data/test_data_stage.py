@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from deepword.word_format import DatasetError, open_dataset
 from stages.data.stage import run
 from stages.data.synword import FrameGenerator, generate
-from stages.word_format import DatasetError, open_dataset
 from tests.stages.data.data_helpers import synword_cfg
 
 METRICS = [f"data.{s}.{m}" for s in ("train", "val", "test")

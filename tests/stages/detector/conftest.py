@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from stages.word_format import CAMERAS, Record, split_by_frame, write_dataset_index, write_records
+from deepword.word_format import CAMERAS, Record, split_by_frame, write_dataset_index, write_records
 
 
 def toy_record(frame_id: int, camera: str, width: int, height: int, rng: np.random.Generator) -> tuple[Record, np.ndarray]:

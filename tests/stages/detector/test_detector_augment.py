@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from deepword.word_format import Record, load_image, parse_record
 from stages.detector.augment import flip_image, flip_record, photometric_jitter
-from stages.word_format import Record, load_image, parse_record
 
 
 def record() -> Record:
@@ -64,7 +64,7 @@ def test_photometric_jitter_hue_leaves_greys_and_is_off_at_zero():
 
 def jitter_step_by_step(image, rng, brightness, contrast, saturation, hue):
     """The jitter's definition, one float pass per step in the drawn order (what the one composed map must equal)."""
-    from stages.colour import hue_rotation
+    from deepword.colour import hue_rotation
 
     x = image.astype(np.float64)
     grey = x @ np.array([0.299, 0.587, 0.114])

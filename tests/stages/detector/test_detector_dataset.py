@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import torch
 
+from deepword.word_format import Record
 from stages.detector.dataset import CenterNetDataset, crop_boxes
-from stages.word_format import Record
 
 
 def test_crop_boxes_shifts_clips_and_drops_mostly_hidden_boxes():

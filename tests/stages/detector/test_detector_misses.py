@@ -2,8 +2,8 @@ import math
 
 import numpy as np
 
+from deepword.word_format import Record
 from stages.detector.misses import breakdown_metrics, recall_breakdown, write_breakdown
-from stages.word_format import Record
 
 
 def record(boxes: list[tuple], width: int = 200, height: int = 100) -> Record:

@@ -7,6 +7,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from deepword.word_format import open_dataset, read_records
 from stages.detector.lightning import (
     CenterNetModule,
     DetectorDataModule,
@@ -14,7 +15,6 @@ from stages.detector.lightning import (
     check_finite_loss,
 )
 from stages.detector.model import load_detector, model_config
-from stages.word_format import open_dataset, read_records
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
 
@@ -61,8 +61,8 @@ def test_empty_val_split_is_an_error(toy_dataset):
 
 @pytest.mark.parametrize("native_bf16", [True, False], ids=["bf16", "fp32-fallback"])
 def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path, monkeypatch, native_bf16):
-    from stages import precision
     from stages.detector.stage import run
+    from stages.training import precision
 
     # trainer.precision auto: bf16 with channels_last where the CPU has native bf16, fp32 NCHW elsewhere
     monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: native_bf16)
@@ -110,7 +110,7 @@ def test_crops_must_fit_the_backbone_strides(toy_dataset, tmp_path):
 
 
 def test_batch_normalisation_in_torch_equals_the_per_image_numpy_one():
-    from stages.detector.letterbox import normalise
+    from deepword.detection.letterbox import normalise
     from stages.detector.lightning import batch_to_input
 
     images = np.random.default_rng(0).integers(0, 256, (3, 16, 24, 3), dtype=np.uint8)
@@ -121,8 +121,8 @@ def test_batch_normalisation_in_torch_equals_the_per_image_numpy_one():
 
 def test_the_detector_seed_is_the_training_draw(toy_dataset, tmp_path, monkeypatch):
     """detector.seed null trains as the run's seed does; another detector.seed draws other weights from the same data."""
-    from stages import precision
     from stages.detector.stage import run
+    from stages.training import precision
 
     monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: False)  # fp32: the quickest path here
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from deepword.word_format import Record
 from stages.evaluate.gallery import disagreements, focus_region
-from stages.word_format import Record
 
 
 def rec(image, relations, boxes=((10, 10, 50, 40, 1, 0, 0), (12, 30, 20, 40, 1, 1, 1))):

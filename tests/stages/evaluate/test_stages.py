@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from stages.evaluate.methods import DETECTOR_PREDICTIONS
+from deepword.priors import load_priors
+from deepword.word_format import SUBSETS, open_dataset, write_records
 from stages.evaluate.stage import run as run_evaluate
-from stages.priors.mixture import load_priors
 from stages.priors.stage import run as run_priors
-from stages.word_format import SUBSETS, open_dataset, write_records
-from tests.stages.evaluate.tiny_word import build
+from tests.deepword.tiny_word import build
+from tests.stage_inputs import stage_inputs
 
 PRIORS_CFG = {"mode": "prior", "components": [1, 3], "n_init": 1, "reg_covar": 1e-4, "max_fit_samples": 2000,
               "plot_bins": 30}
@@ -55,7 +55,7 @@ def test_priors_stage_posterior_mode(chain, tmp_path):
 def test_evaluate_stage_report_metrics_and_gallery(chain, tmp_path):
     _, data, priors_dir, _ = chain
     cfg = OmegaConf.create({"eval": EVAL_CFG, "seed": 0})
-    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
+    metrics = run_evaluate(cfg, stage_inputs("evaluate", {"data": data, "priors": priors_dir}), tmp_path)
     for method in ("logic", "logic_plus", "prior"):
         for subset in SUBSETS:
             for m in ("wheel_acc", "pair_precision", "pair_recall", "pair_f1", "couple_f1", "image_acc"):
@@ -86,11 +86,12 @@ def test_evaluate_stage_detected_boxes(chain, tmp_path):
         b[:, :4] = np.minimum(b[:, :4], [r.width, r.height, r.width, r.height])
         b[:, 4] = 0.9
         shifted.append(type(r)(**{**r.__dict__, "boxes": b, "relations": [], "wheel_pairs": []}))
-    write_records(detector / DETECTOR_PREDICTIONS, shifted)
+    write_records(stage_inputs("evaluate", {"detector": detector}).output("detector", "predictions", split="test"),
+                  shifted)
     out = tmp_path / "eval"
     out.mkdir()
     cfg = OmegaConf.create({"eval": dict(EVAL_CFG, methods=["logic"], gallery_images=0), "seed": 0})
-    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "detector": detector}, out)
+    metrics = run_evaluate(cfg, stage_inputs("evaluate", {"data": data, "priors": priors_dir, "detector": detector}), out)
     gt, det = metrics["eval.gt.logic.easy.wheel_acc"], metrics["eval.detected.logic.easy.wheel_acc"]
     assert det <= gt and det > 50  # nearly the same boxes, but the missing image's wheels are all missed
     # the ceiling of these boxes: the truth's relations on them misses only the missing image's pairs
@@ -107,7 +108,7 @@ def test_unknown_method_is_an_error(chain, tmp_path):
     _, data, priors_dir, _ = chain
     cfg = OmegaConf.create({"eval": dict(EVAL_CFG, methods=["oracle"]), "seed": 0})
     with pytest.raises(ValueError, match="unknown method 'oracle'"):
-        run_evaluate(cfg, {"data": data, "priors": priors_dir}, tmp_path)
+        run_evaluate(cfg, stage_inputs("evaluate", {"data": data, "priors": priors_dir}), tmp_path)
 
 
 def test_evaluate_stage_scores_the_held_out_domain_beside_the_in_domain_rows(chain, tmp_path, monkeypatch):
@@ -121,7 +122,7 @@ def test_evaluate_stage_scores_the_held_out_domain_beside_the_in_domain_rows(cha
         fit = methods.METHODS[name]
         monkeypatch.setitem(methods.METHODS, name, lambda ctx, fit=fit, name=name: fits.append(name) or fit(ctx))
     cfg = OmegaConf.create({"eval": dict(EVAL_CFG, box_sources=["gt"], gallery_images=0), "seed": 0})
-    metrics = run_evaluate(cfg, {"data": data, "priors": priors_dir, "shift_data": data}, tmp_path)
+    metrics = run_evaluate(cfg, stage_inputs("evaluate", {"data": data, "priors": priors_dir, "shift_data": data}), tmp_path)
     assert sorted(fits) == ["logic", "logic_plus", "prior"]
     in_domain = {k: v for k, v in metrics.items() if k.startswith("eval.gt.")}
     shifted = {k.replace("eval.shift.", "eval.", 1): v for k, v in metrics.items() if k.startswith("eval.shift.")}

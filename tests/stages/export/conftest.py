@@ -14,7 +14,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from stages.word_format import Record, difficulty_subsets, write_dataset_index, write_records
+from deepword.word_format import Record, difficulty_subsets, write_dataset_index, write_records
 from tests.car_rows import CarRows
 from tests.stages.export.tiny_models import DETECTOR, EXPORT_CFG, MAX_OBJECTS, PRIORS_CFG, RELATION_MODEL
 
@@ -55,7 +55,7 @@ def build_dataset(root: Path, n: int = 14, seed: int = 0) -> Path:
 
 
 def save_relation(out: Path, seed: int = 0) -> Path:
-    from stages.relation.inputs import InputConfig
+    from deepword.relation_graph import InputConfig
     from stages.relation.model import ModelConfig, RelationNet
 
     torch.manual_seed(seed)

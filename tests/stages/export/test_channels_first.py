@@ -8,8 +8,8 @@ import warnings
 import pytest
 import torch
 
+from deepword.inference.runtime import ort_session
 from stages.export.channels_first import ChannelsFirstGraph, pair_geometry_channels_first
-from stages.inference.runtime import ort_session
 from stages.relation.model import ModelConfig, RelationNet, pair_geometry
 
 torch.set_num_threads(1)

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
+from deepword.inference.runtime import RELATION_FILES, OnnxRelation
+from deepword.operating_point.search import SubsetRelation, search_operating_point
+from deepword.relation_graph import subgraph
+from deepword.word_format import load_image, open_dataset
 from stages.export.embedded_boxes import EmbeddedBoxes
 from stages.export.onnx_export import export_relation
-from stages.export.operating_point import SubsetRelation, search_operating_point
-from stages.inference.runtime import RELATION_FILES, OnnxRelation
-from stages.relation.inputs import subgraph
 from stages.relation.model import RelationEnsemble
-from stages.word_format import load_image, open_dataset
 from tests.stages.export.test_export_parity import random_graphs, small_net
 from tests.stages.export.tiny_models import MAX_OBJECTS, RELATION_MODEL
 
@@ -75,7 +75,9 @@ def test_the_search_finds_the_same_point_with_each_box_embedded_once(ensemble_bu
     def load(rec):
         return load_image(ds.root, rec)
     whole = SubsetRelation(OnnxRelation(bundle, "dynamic"), detections, load)
-    once = SubsetRelation(OnnxRelation(bundle, "dynamic"), detections, load, network=net)
+    shipped = OnnxRelation(bundle, "dynamic")
+    once = SubsetRelation(shipped, detections, load,
+                          embed=lambda graphs: EmbeddedBoxes(net, graphs, shipped.flip_average))
     assert whole.embedded is None and once.embedded is not None
     grid, sides = [0.1, 0.3, 0.5, 0.7], [[0.0], [0.0, 8.0]]
     chosen_whole, seen_whole = search_operating_point(truths, detections, whole, 2, grid, sides, 4.0)

@@ -50,7 +50,7 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
         for subset in ("easy", "hard", "mixed"):
             errors = report["pair_errors"][boxes]
             assert errors["deepword_then_logic"][subset]["found"] >= errors["deepword"][subset]["found"]
-    from stages.word_format import read_records
+    from deepword.word_format import read_records
 
     by_method = {m: {r.image: r for r in read_records(evaluated / "predictions" / f"detected_{m}.jsonl",
                                                       allow_empty=True)}
@@ -71,9 +71,9 @@ def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_grou
     import pytest
     from omegaconf import OmegaConf
 
+    from deepword.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
     from stages.evaluate.stage import run as evaluate
     from stages.export.stage import run as export
-    from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, NoDetectorError, OnnxDetector
     from tests.stages.export.tiny_models import EXPORT_CFG
 
     relation_only = {k: v for k, v in upstream.items() if k != "detector"}
@@ -103,9 +103,9 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
     detector's score_threshold: a precision-recall curve cut at the operating point would understate it."""
     from dataclasses import replace
 
+    from deepword.word_format.dataset import open_dataset
     from stages.evaluate import methods
     from stages.inference import runtime
-    from stages.word_format.dataset import open_dataset
 
     class FakeDetector:
         """Each test image's true boxes as detections scored 0.2 and 0.6 in turn; 0.5 the operating point."""
@@ -144,9 +144,9 @@ def test_the_rows_share_each_image_and_deepwords_predictions(upstream, exported,
     from omegaconf import OmegaConf
 
     import stages.evaluate.methods as methods
+    from deepword.inference.runtime import OnnxRelation
+    from deepword.word_format import open_dataset
     from stages.evaluate.stage import run
-    from stages.inference.runtime import OnnxRelation
-    from stages.word_format import open_dataset
 
     decoded, relation_runs = [], []
     load = methods.load_image
@@ -166,7 +166,7 @@ def test_the_rows_share_each_image_and_deepwords_predictions(upstream, exported,
     assert sorted(decoded) == sorted(test_images)                     # once each, for both models
     assert sorted(relation_runs) == sorted([[i] for i in test_images] * 2)   # fp32 and int8, not fp32 twice
     # and the rows are what they were: deepword_then_logic starts with deepword's own claims
-    from stages.word_format import read_records
+    from deepword.word_format import read_records
 
     rows = {m: {r.image: r for r in read_records(tmp_path / "predictions" / f"gt_{m}.jsonl", allow_empty=True)}
             for m in ("deepword", "deepword_then_logic")}

@@ -13,7 +13,7 @@ def test_batches_cycle_through_images_and_concatenate_along_batch():
 
 
 def test_graph_batches_pad_each_batch_to_its_largest_graph_or_to_n():
-    from stages.relation.inputs import ImageGraph
+    from deepword.relation_graph import ImageGraph
 
     def graph(k: int) -> ImageGraph:
         return ImageGraph(crops=np.full((k, 3, 4, 4), k, np.uint8), coords=np.ones((k, 4), np.float32),
@@ -39,8 +39,8 @@ def test_median_ms_runs_warmup_then_timed_calls():
 def test_register_models_logs_and_registers_both_with_metrics(exported, tmp_path, monkeypatch):
     from mlflow.tracking import MlflowClient
 
+    from deepword.inference.runtime import DETECTOR_FILE, RELATION_FILES
     from stages.export.registry import REGISTERED_NAMES, register_models
-    from stages.inference.runtime import DETECTOR_FILE, RELATION_FILES
 
     monkeypatch.chdir(tmp_path)  # artifacts of the sqlite store go under the working directory
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

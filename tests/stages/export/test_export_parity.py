@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
+from deepword.inference.decode import decode_couples, decode_owners
+from deepword.inference.runtime import RELATION_OUTPUTS, ort_session
+from deepword.relation_graph import ImageGraph, node_tensor
 from stages.export.onnx_export import FoldedBackbone, export_detector, export_relation, relation_example
 from stages.export.parity import ParityError, ParityReport, compare_detector, detector_parity, relation_parity
-from stages.inference.decode import decode_couples, decode_owners
-from stages.inference.runtime import RELATION_OUTPUTS, ort_session
 from stages.relation import decode as torch_decode
-from stages.relation.inputs import ImageGraph, node_tensor
 from stages.relation.model import ModelConfig, RelationNet
 from tests.stages.export.tiny_models import DETECTOR, RELATION_MODEL
 

@@ -6,7 +6,7 @@ import numpy as np
 import onnx
 import pytest
 
-from stages.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, RELATION_FILES
+from deepword.inference.runtime import BUNDLE_FILE, DETECTOR_FILE, RELATION_FILES
 
 
 def test_stage_writes_checked_models_and_metrics(exported):
@@ -49,8 +49,8 @@ def test_a_bundle_detector_keeps_what_its_operating_point_keeps(exported, tmp_pa
     before they existed) keeps every size."""
     import shutil
 
-    from stages.inference.runtime import OnnxDetector
-    from stages.word_format import Record
+    from deepword.inference.runtime import OnnxDetector
+    from deepword.word_format import Record
 
     out, _ = exported
     bundle_dir = tmp_path / "bundle"
@@ -74,9 +74,9 @@ def test_a_bundle_detector_keeps_what_its_operating_point_keeps(exported, tmp_pa
 def test_the_bundle_ships_its_end_to_end_method_and_the_rule_it_falls_back_on(upstream, exported, evaluated):
     """The IoU rule in the bundle is the evaluate stage's fit of its own `logic` row, and the operating point's val
     pair_f1 is the end-to-end method's: the bundle's detector at its operating point, then the bundle's method."""
-    from stages.inference.runtime import OnnxDetector, bundle_method, end_to_end_method
-    from stages.metrics import score_records
-    from stages.word_format import load_image, open_dataset
+    from deepword.inference.runtime import OnnxDetector, bundle_method, end_to_end_method
+    from deepword.metrics import score_records
+    from deepword.word_format import load_image, open_dataset
 
     out, metrics = exported
     bundle = json.loads((out / BUNDLE_FILE).read_text())
@@ -96,8 +96,8 @@ def test_the_bundle_ships_its_end_to_end_method_and_the_rule_it_falls_back_on(up
 def test_an_unknown_end_to_end_method_fails_before_anything_is_exported(upstream):
     from omegaconf import OmegaConf
 
+    from deepword.word_format import open_dataset
     from stages.export.stage import end_to_end_entry
-    from stages.word_format import open_dataset
 
     cfg = OmegaConf.create({"method": "deepword_then_iou", "fit": {"images": 5, "couple_tolerance": [0.5],
                                                                    "logic_iou": [0.1]}})

@@ -7,6 +7,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from deepword.inference.runtime import ort_session
+from deepword.relation_graph import node_tensor
 from stages.export.onnx_export import (
     FoldedBackbone,
     corner_kernel,
@@ -16,8 +18,6 @@ from stages.export.onnx_export import (
     plane_grid,
     plane_responses,
 )
-from stages.inference.runtime import ort_session
-from stages.relation.inputs import node_tensor
 from stages.relation.model import ModelConfig, RelationNet
 
 torch.set_num_threads(1)

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
+from deepword.word_format import read_records
 from stages.cli import main as deepword
 from stages.inference.infer import main as infer
-from stages.word_format import read_records
 
 REPO = Path(__file__).parents[3]
 
@@ -192,8 +192,8 @@ def test_deepword_command_dispatches_and_rejects_unknown_commands(capsys):
 
 
 def test_infer_with_a_calibration_file_writes_footprints_and_a_top_view(exported, generated_images, tmp_path, capsys):
-    from stages.bev.apply import PRIOR_FILE
-    from stages.bev.footprint import FootprintPrior
+    from deepword.footprint import FootprintPrior
+    from deepword.inference.footprints import PRIOR_FILE
 
     bev = tmp_path / "bev"
     bev.mkdir()
@@ -223,9 +223,9 @@ def test_flip_averaged_relation_scores_do_not_depend_on_which_way_the_image_face
     image and its mirror image get the same scores; without it they differ."""
     import shutil
 
-    from stages.inference.runtime import BUNDLE_FILE, OnnxRelation
-    from stages.relation.inputs import mirrored
-    from stages.word_format import load_image, open_dataset
+    from deepword.inference.runtime import BUNDLE_FILE, OnnxRelation
+    from deepword.relation_graph import mirrored
+    from deepword.word_format import load_image, open_dataset
 
     out, _ = exported
     bundle = tmp_path / "bundle"

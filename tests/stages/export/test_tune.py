@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from stages.inference.runtime import BUNDLE_FILE, OnnxDetector
+from deepword.inference.runtime import BUNDLE_FILE, OnnxDetector
 from stages.inference.tune import main as tune
 
 REPO = Path(__file__).resolve().parents[3]
@@ -41,7 +41,7 @@ def test_the_tuned_bundle_is_what_infer_keeps_detections_at(upstream, exported, 
     assert detector.class_thresholds == (0.3, 0.3) and detector.class_min_sides == (0.0, 5.0)
     printed = capsys.readouterr()
     assert "minimum sides {'vehicle': 0.0, 'wheel': 5.0}" in printed.out
-    # stderr is no terminal here: progress is whole lines (stages/progress.py), not a bar redrawn with \r
+    # stderr is no terminal here: progress is whole lines (deepword/progress.py), not a bar redrawn with \r
     assert "\r" not in printed.err and "detector: " in printed.err
     assert any(line.startswith("relation model on subsets of the boxes: ") for line in printed.err.splitlines())
     assert tune(args[:-1] + ["wheel=6"]) == 0   # a bundle tune wrote may be replaced

@@ -1,5 +1,5 @@
 """The ``init`` group: starting the detector and the relation network from an earlier run's weights
-(stages/init_source.py, docs/stages.md "init"). Plan-time checks run on hand-made weights; one tiny smoke
+(stages/training/init_source.py, docs/stages.md "init"). Plan-time checks run on hand-made weights; one tiny smoke
 pipeline (data, priors, relation, detector) is the parent of the runs that start from it."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from pipeline.dag import load_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import PlanContext, key_parts
-from stages.init_source import INIT_INPUT
+from stages.training.init_source import INIT_INPUT
 
 REPO = Path(__file__).resolve().parents[3]
 # The smoke profile shrunk further (tests/experiments/pipeline_runs.TINY), export and what needs it left out.
@@ -165,7 +165,7 @@ def test_a_run_starts_from_its_parents_weights(parent_run):
     from mlflow.tracking import MlflowClient
 
     from pipeline.runner import run_pipeline
-    from stages.init_source import file_sha256
+    from stages.training.init_source import file_sha256
 
     tmp, parent = parent_run["tmp"], parent_run["summary"]
     other = [*parent_run["common"], "data.frames=6", "relation.train.seed=7", "detector.seed=7"]
@@ -214,8 +214,8 @@ def test_a_bad_run_id_stops_the_pipeline_before_any_stage(parent_run):
 
 
 def test_relation_members_start_from_as_many_members_or_one_network(tmp_path):
-    from stages.init_source import InitError
     from stages.relation.warm_start import member_states
+    from stages.training.init_source import InitError
 
     one = {"backbone.w": torch.zeros(2), "gcn.0.weight": torch.ones(2, 2)}
     two = {f"members.{i}.{k}": v + i for i in range(2) for k, v in one.items()}

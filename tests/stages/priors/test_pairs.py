@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from stages.geometry import distance_ratio
+from deepword.geometry import distance_ratio
+from deepword.word_format import Record
 from stages.priors.pairs import collect_ratios, record_ratios
-from stages.word_format import Record
 
 
 def test_record_ratios_labels_and_counts():

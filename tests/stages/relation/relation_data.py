@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.relation.inputs import InputConfig, SplitInputs, build_split
-from stages.word_format import Record
+from deepword.relation_graph import InputConfig, SplitInputs, build_split
+from deepword.word_format import Record
 from tests.car_rows import CarRows
 
 W, H = 192, 128

@@ -64,7 +64,7 @@ def test_a_bad_augment_config_names_the_field():
 
 
 def test_training_graphs_keep_their_geometry_when_augmented():
-    from stages.relation.inputs import InputConfig
+    from deepword.relation_graph import InputConfig
     from stages.relation.lightning import GraphDataset
     from tests.stages.relation.relation_data import records, split
 

@@ -10,7 +10,7 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-from stages.relation.inputs import InputConfig
+from deepword.relation_graph import InputConfig
 from stages.relation.model import ModelConfig, RelationNet, count_parameters, size_mb
 
 CONF = Path(__file__).resolve().parents[3] / "conf"

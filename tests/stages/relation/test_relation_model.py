@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
+from deepword.relation_graph import InputConfig, node_tensor
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
-from stages.relation.inputs import InputConfig, node_tensor
 from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
 from tests.stages.relation import relation_data as rd
 

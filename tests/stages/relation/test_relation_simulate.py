@@ -1,7 +1,7 @@
 import numpy as np
 
-from stages.geometry import pairwise_iou
-from stages.relation.inputs import relation_targets
+from deepword.geometry import pairwise_iou
+from deepword.relation_graph import relation_targets
 from stages.relation.simulate import DetectionNoise, simulate_detections, with_simulated_detections
 from tests.stages.relation import relation_data as rd
 

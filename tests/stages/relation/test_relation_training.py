@@ -11,8 +11,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from deepword.relation_graph import InputConfig
 from stages.relation.decode import allowed_owners
-from stages.relation.inputs import InputConfig
 from stages.relation.lightning import (
     GraphDataset,
     RelationDataModule,
@@ -176,8 +176,8 @@ def _write_dataset(root, n_train=16, n_val=6):
     """A data-stage-like directory (labels, PNGs, dataset.json, splits.json) and a priors directory."""
     import cv2
 
-    from stages.priors.mixture import Mixture1D, PairPrior, Priors
-    from stages.word_format import write_dataset_index, write_records
+    from deepword.priors import Mixture1D, PairPrior, Priors
+    from deepword.word_format import write_dataset_index, write_records
 
     recs = rd.records(n_train + n_val, seed=2)
     for rec in recs:

@@ -7,7 +7,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from stages.relation.inputs import InputConfig
+from deepword.relation_graph import InputConfig
 from stages.relation.lightning import GraphDataset
 from stages.relation.warp import BoxWarpConfig, radial_warp, random_box_warp, warp_boxes
 from tests.stages.relation.relation_data import records, split

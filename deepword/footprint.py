@@ -1,0 +1,408 @@
+"""Vehicle footprints in bird's-eye view from the wheels a relation assigns to each vehicle.
+
+A wheel touches the ground, so the image point where its tyre meets the ground, back-projected through the
+calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Per vehicle of a record
+(``estimate_record``), from the strongest evidence its relation gives:
+
+- ``sides``: two couples (four wheels): the axis from both side lines, the centre between them;
+- ``side``: two wheels of one side (a couple, or two owned wheels as far apart as a wheelbase): the side
+  line gives the axis, the wheelbase the length (``FootprintPrior.length_for``), the width prior puts the
+  centre behind the side, away from the camera;
+- ``axle``: two wheels of one axle: the axis is perpendicular, the centre half a wheelbase further away;
+- ``wheel``: one wheel: the centre where the wheel's offset circle meets the ``box_bottom`` guess best,
+  the axis that puts the body beyond the wheel;
+- ``box``: no wheel: the ``box_bottom`` estimate.
+
+``box_bottom`` (no relation at all) back-projects the bottom centre of the vehicle box and pushes it away
+from the camera by a fitted distance; its axis is the box's back-projected bottom edge, along the vehicle
+when that edge is longer than a car is wide.
+
+**Heading direction.** A relation may name each wheel's role (``front`` / ``rear``: DeepWORD's role head and the
+ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
+(a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
+vehicle's front and the estimate is ``directed``; otherwise (``box``, wheels without roles) only the axis is
+known and the heading's sign is arbitrary, so it is scored both over 360 deg and modulo 180 deg.
+
+**Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
+scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
+detector's scores on detected boxes, 1 on ground-truth boxes).
+
+``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
+one vehicle (seen by two cameras); its footprint is the mean of its strongest estimates, its heading turned
+the way its strongest directed estimates point, its confidence the highest of its estimates'.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from deepword.cameras import BOX_TO_IMAGE, Camera
+from deepword.format_3d import Box3D
+from deepword.word_format import VEHICLE, WHEEL, Record
+
+# evidence levels, strongest first
+EVIDENCE = ("sides", "side", "axle", "wheel", "box")
+EVIDENCE_CONFIDENCE = {"sides": 1.0, "side": 0.9, "axle": 0.7, "wheel": 0.5, "box": 0.3}
+EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # wheels the evidence rests on (cap 2)
+
+
+@dataclass(frozen=True)
+class FootprintPrior:
+    """Vehicle shape statistics fitted on the train split's 3D truth (``fit_prior``)."""
+
+    width: float              # median vehicle width (m)
+    length: float             # median length
+    wheelbase: float          # median wheelbase
+    length_slope: float       # length = length_slope * wheelbase + length_offset (least squares)
+    length_offset: float
+    track_inset: float        # median distance from a wheel's contact point in to the body side
+    contact_shift: float      # median distance the back-projected wheel point lies nearer the camera than the contact
+    box_shift: float          # median distance from the back-projected vehicle box bottom centre on to the centre
+    height: float = 1.5       # median vehicle height (footprints are boxes of this height)
+
+    def length_for(self, wheelbase: float) -> float:
+        return self.length_slope * wheelbase + self.length_offset
+
+    def to_json(self) -> dict:
+        return {k: round(float(v), 5) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_json(cls, d: dict) -> FootprintPrior:
+        return cls(**{k: float(d[k]) for k in cls.__dataclass_fields__ if k in d})
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One vehicle's estimated footprint from one image."""
+
+    box: Box3D
+    evidence: str           # one of EVIDENCE
+    camera: str
+    vehicle_box_id: int
+    image: str
+    confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
+    directed: bool = False   # the heading points to the front (wheel roles), else only the axis is known
+
+    @property
+    def rank(self) -> int:
+        return EVIDENCE.index(self.evidence)
+
+
+# --- image points -> ground ---------------------------------------------------------------------------
+
+def _away(cam: Camera, xy: np.ndarray) -> np.ndarray:
+    """Unit horizontal directions from the camera to ground points (N, 2)."""
+    d = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - cam.translation[:2]
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+
+
+def bottom_points(cam: Camera, xyxy: np.ndarray) -> np.ndarray:
+    """(N, 2) image points where boxes meet the ground: the box bottom centres, moved along the image's own
+    'down' (the direction a vertical line runs at that place of the fisheye image) to the box border."""
+    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4) + BOX_TO_IMAGE
+    centre = np.stack([(xyxy[:, 0] + xyxy[:, 2]) / 2, (xyxy[:, 1] + xyxy[:, 3]) / 2], axis=1)
+    # the local image direction of "down": a point on the centre's ray and the same point lowered a little
+    rays, _ = cam.rays(centre)
+    p = cam.translation + 3.0 * rays
+    a, _ = cam.project(p)
+    b, _ = cam.project(p - np.array([0.0, 0.0, 0.05]))
+    down = b - a
+    down /= np.maximum(np.linalg.norm(down, axis=1, keepdims=True), 1e-9)
+    down[down[:, 1] < 0.2] = (0.0, 1.0)  # a degenerate direction falls back to the image's own down
+    half = (xyxy[:, 2:] - xyxy[:, :2]) / 2
+    # walk from the centre along `down` to the first box edge
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.minimum(np.where(np.abs(down[:, 0]) > 1e-9, half[:, 0] / np.abs(down[:, 0]), np.inf),
+                       np.where(np.abs(down[:, 1]) > 1e-9, half[:, 1] / np.abs(down[:, 1]), np.inf))
+    return centre + t[:, None] * down
+
+
+def wheel_contacts(cam: Camera, xyxy: np.ndarray, prior: FootprintPrior | None) -> tuple[np.ndarray, np.ndarray]:
+    """Ground contact points (N, 2) of wheel boxes and their validity; with a prior, the fitted
+    ``contact_shift`` moves each point away from the camera (a tyre's lowest visible point lies nearer the
+    camera than the middle of its footprint)."""
+    xy, ok = cam.ground_points(bottom_points(cam, xyxy))
+    if prior is not None:
+        xy = xy + prior.contact_shift * _away(cam, xy)
+    return xy, ok
+
+
+def box_bottom_points(cam: Camera, xyxy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ground points of the vehicle boxes' bottom centres."""
+    return cam.ground_points(bottom_points(cam, xyxy))
+
+
+# --- one vehicle --------------------------------------------------------------------------------------
+
+def _axis_angle(v: np.ndarray) -> float:
+    return math.atan2(v[1], v[0])
+
+
+def _edge_axis(cam: Camera, box: np.ndarray, prior: FootprintPrior) -> float | None:
+    """The axis from a vehicle box's bottom edge: its back-projected bottom corners span the vehicle's visible
+    side (along the axis) when they lie further apart than the width and less far than the length."""
+    x1, _, x2, y2 = box + BOX_TO_IMAGE
+    xy, ok = cam.ground_points(np.array([[x1, y2], [x2, y2]]))
+    if not ok.all():
+        return None
+    edge = xy[1] - xy[0]
+    span = float(np.linalg.norm(edge))
+    along = _axis_angle(edge)
+    return along if span >= (prior.length + prior.width) / 2 else along + math.pi / 2
+
+
+def box_bottom_estimate(cam: Camera, box: np.ndarray, prior: FootprintPrior) -> Box3D | None:
+    p, ok = box_bottom_points(cam, box[None, :4])
+    if not ok[0]:
+        return None
+    centre = p[0] + prior.box_shift * _away(cam, p)[0]
+    yaw = _edge_axis(cam, box[:4], prior)
+    return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, 0.0 if yaw is None else yaw)
+
+
+def _side_box(cam: Camera, a: np.ndarray, b: np.ndarray, prior: FootprintPrior, far_side: bool = True) -> Box3D:
+    """Footprint from two same-side contacts: the body lies beyond the side line, away from the camera."""
+    axis = b - a
+    wheelbase = float(np.linalg.norm(axis))
+    u = axis / max(wheelbase, 1e-9)
+    n = np.array([-u[1], u[0]])
+    mid = (a + b) / 2
+    if far_side and np.dot(n, mid - cam.translation[:2]) < 0:
+        n = -n
+    centre = mid + n * (prior.width / 2 - prior.track_inset)
+    return Box3D(float(centre[0]), float(centre[1]), prior.length_for(wheelbase), prior.width, _axis_angle(u))
+
+
+def _axle_box(cam: Camera, a: np.ndarray, b: np.ndarray, prior: FootprintPrior) -> Box3D:
+    """Footprint from the two contacts of one axle: the vehicle extends away from the camera."""
+    axle = b - a
+    n = np.array([-axle[1], axle[0]]) / max(float(np.linalg.norm(axle)), 1e-9)
+    mid = (a + b) / 2
+    if np.dot(n, mid - cam.translation[:2]) < 0:
+        n = -n
+    centre = mid + n * prior.wheelbase / 2
+    return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, _axis_angle(n))
+
+
+def _wheel_box(cam: Camera, c: np.ndarray, vbox: np.ndarray, prior: FootprintPrior) -> Box3D | None:
+    """Footprint from one contact: the centre lies half a wheelbase along and (width/2 - track inset) across
+    from it, on a circle around the contact; the point of that circle nearest the ``box_bottom`` centre.
+    Of the two axes through that centre, the one whose side line puts the body beyond the wheel, away from
+    the camera (the wheel is seen, so it is on the near side)."""
+    guess = box_bottom_estimate(cam, vbox, prior)
+    if guess is None:
+        return None
+    half_wb, lateral = prior.wheelbase / 2, prior.width / 2 - prior.track_inset
+    d = np.array([guess.x, guess.y]) - c
+    if np.linalg.norm(d) < 1e-6:
+        d = _away(cam, c)[0]
+    d = d / np.linalg.norm(d)
+    centre = c + math.hypot(half_wb, lateral) * d
+    phi = math.atan2(lateral, half_wb)
+    away = _away(cam, c)[0]
+    best = None
+    for sign in (1.0, -1.0):
+        yaw = _axis_angle(d) - sign * phi
+        n = np.array([-math.sin(yaw), math.cos(yaw)])
+        if np.dot(n, d) < 0:
+            n = -n
+        score = float(np.dot(n, away))
+        if best is None or score > best[0]:
+            best = (score, yaw)
+    return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, best[1])
+
+
+def _mean_box(boxes: list[Box3D]) -> Box3D:
+    """Mean centre, size and undirected axis (doubled-angle mean) of footprints of one vehicle."""
+    x = float(np.mean([b.x for b in boxes]))
+    y = float(np.mean([b.y for b in boxes]))
+    yaw = 0.5 * math.atan2(sum(math.sin(2 * b.yaw) for b in boxes), sum(math.cos(2 * b.yaw) for b in boxes))
+    return Box3D(x, y, float(np.mean([b.length for b in boxes])), float(np.mean([b.width for b in boxes])), yaw,
+                 float(np.mean([b.height for b in boxes])))
+
+
+def _flip(box: Box3D) -> Box3D:
+    return replace(box, yaw=math.remainder(box.yaw + math.pi, 2 * math.pi))
+
+
+def _ordered(a: int, b: int, roles: dict[int, str]) -> tuple[int, int, bool]:
+    """Two same-side wheels rear first when their roles tell (``directed``), else as given."""
+    ra, rb = roles.get(a), roles.get(b)
+    if (ra, rb) == ("front", "rear"):
+        return b, a, True
+    return a, b, (ra, rb) == ("rear", "front")
+
+
+def orient(box: Box3D, headings: list[float]) -> Box3D:
+    """``box`` with its heading turned the way most of the directed ``headings`` point."""
+    if headings and sum(math.cos(h - box.yaw) for h in headings) < 0:
+        return _flip(box)
+    return box
+
+
+def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relations: bool = True) -> list[Estimate]:
+    """One footprint per vehicle box of ``rec`` from its predicted relations and couples
+    (``use_relations=False``: the ``box_bottom`` baseline)."""
+    contacts = {}
+    wheels = rec.boxes[rec.class_ids == WHEEL]
+    if len(wheels) and use_relations:
+        xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
+        contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+    return footprints_from_contacts(rec, cam, prior, contacts, use_relations)
+
+
+def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, contacts: dict[int, np.ndarray],
+                             use_relations: bool = True) -> list[Estimate]:
+    """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y))."""
+    by_id = {int(b[6]): b for b in rec.boxes}
+    owner = rec.owner_of() if use_relations else {}
+    roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
+    couples = [(a, b) for a, b in rec.wheel_pairs if a in contacts and b in contacts] if use_relations else []
+    side_threshold = (prior.wheelbase + prior.width) / 2
+    out = []
+    for vid in (int(b[6]) for b in rec.boxes if int(b[5]) == VEHICLE):
+        vbox = by_id[vid]
+        wheels = [w for w, v in owner.items() if v == vid and w in contacts]
+        own_couples = [(a, b) for a, b in couples if owner.get(a) == vid and owner.get(b) == vid]
+        box, evidence, directed, used = None, "box", False, []
+        if len(own_couples) >= 2:
+            ordered = [_ordered(a, b, roles) for a, b in own_couples[:2]]
+            sides = [_side_box(cam, contacts[a], contacts[b], prior, far_side=False) for a, b, _ in ordered]
+            centre = np.mean([contacts[w] for pair in own_couples[:2] for w in pair], axis=0)
+            merged = _mean_box(sides)
+            box, evidence = Box3D(float(centre[0]), float(centre[1]), merged.length, prior.width, merged.yaw), "sides"
+            headings = [s.yaw for s, (_, _, d) in zip(sides, ordered, strict=True) if d]
+            box, directed, used = orient(box, headings), bool(headings), [w for pair in own_couples[:2] for w in pair]
+        elif len(wheels) >= 2:
+            if own_couples:
+                a, b = own_couples[0]
+            else:  # the two owned wheels furthest apart
+                a, b = max(((p, q) for i, p in enumerate(wheels) for q in wheels[i + 1:]),
+                           key=lambda pq: np.linalg.norm(contacts[pq[0]] - contacts[pq[1]]))
+            apart = float(np.linalg.norm(contacts[a] - contacts[b]))
+            used = [a, b]
+            if own_couples or apart >= side_threshold:
+                a, b, directed = _ordered(a, b, roles)
+                box, evidence = _side_box(cam, contacts[a], contacts[b], prior), "side"
+            else:
+                box, evidence = _axle_box(cam, contacts[a], contacts[b], prior), "axle"
+                axle_roles = {roles.get(a), roles.get(b)}
+                directed = len(axle_roles) == 1 and None not in axle_roles
+                if axle_roles == {"front"}:  # the body extends back from the front axle: the front faces the camera
+                    box = _flip(box)
+        elif len(wheels) == 1:
+            box, evidence, used = _wheel_box(cam, contacts[wheels[0]], vbox, prior), "wheel", wheels
+            role = roles.get(wheels[0])
+            if box is not None and role is not None:
+                ahead = float(np.dot(contacts[wheels[0]] - (box.x, box.y), (math.cos(box.yaw), math.sin(box.yaw))))
+                box, directed = (_flip(box) if (ahead < 0) == (role == "front") else box), True
+        if box is None:
+            box, evidence, directed, used = box_bottom_estimate(cam, vbox, prior), "box", False, []
+        if box is not None:
+            box = replace(box, height=prior.height)
+            conf = EVIDENCE_CONFIDENCE[evidence] * float(vbox[4])
+            if used:
+                conf *= float(np.mean([by_id[w][4] for w in used]))
+            out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
+                                confidence=conf, directed=directed))
+    return out
+
+
+# --- a frame's cameras ----------------------------------------------------------------------------------
+
+def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, list[Estimate]]]:
+    """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate
+    (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
+    the mean of its estimates of the strongest evidence."""
+    def nearness(e: Estimate) -> float:
+        return math.hypot(e.box.x, e.box.y)
+
+    groups: list[list[Estimate]] = []
+    for e in sorted(estimates, key=lambda e: (e.rank, nearness(e))):
+        for g in groups:
+            if math.hypot(g[0].box.x - e.box.x, g[0].box.y - e.box.y) <= radius_m:
+                g.append(e)
+                break
+        else:
+            groups.append([e])
+    fused = []
+    for g in groups:
+        best = [e.box for e in g if e.rank == g[0].rank]
+        box = _mean_box(best) if len(best) > 1 else best[0]
+        directed = [e for e in g if e.directed]
+        if directed:  # the heading of the strongest directed estimates (of any camera of the group)
+            box = orient(box, [e.box.yaw for e in directed if e.rank == directed[0].rank])
+        fused.append((box, g))
+    return fused
+
+
+def group_confidence(group: list[Estimate]) -> float:
+    """A fused footprint's confidence: the highest of its estimates'."""
+    return max(e.confidence for e in group)
+
+
+def group_directed(group: list[Estimate]) -> bool:
+    """Whether a fused footprint's heading points to the front (one of its estimates is directed)."""
+    return any(e.directed for e in group)
+
+
+def group_wheels(group: list[Estimate]) -> int:
+    """Wheels (0, 1, 2 = two or more) the fused footprint's strongest evidence rests on."""
+    return EVIDENCE_WHEELS[group[0].evidence]
+
+
+# --- fitting the prior on 3D truth ------------------------------------------------------------------------
+
+def fit_prior(samples) -> FootprintPrior:
+    """Fit ``FootprintPrior`` from (record, camera, vehicles {box_id: Box3D}, wheels {box_id: (x, y)})
+    tuples of train images with ground-truth boxes and relations."""
+    widths, lengths, heights, bases, insets, shifts, box_shifts = [], [], [], [], [], [], []
+    seen_vehicles = set()
+    for rec, cam, vehicles, wheels in samples:
+        owner = rec.owner_of()
+        by_id = {int(b): rec.boxes[i] for i, b in enumerate(rec.box_ids)}
+        for vid, v in vehicles.items():
+            key = (rec.frame_id, round(v.x, 2), round(v.y, 2))
+            if key in seen_vehicles:
+                continue
+            seen_vehicles.add(key)
+            widths.append(v.width)
+            lengths.append(v.length)
+            heights.append(v.height)
+            u = np.array([math.cos(v.yaw), math.sin(v.yaw)])
+            n = np.array([-u[1], u[0]])
+            for w, owner_id in owner.items():
+                if owner_id == vid and w in wheels:
+                    insets.append(v.width / 2 - abs(float(np.dot(np.array(wheels[w]) - (v.x, v.y), n))))
+        for a, b in rec.wheel_pairs:
+            if a in wheels and b in wheels and owner.get(a) == owner.get(b) and owner.get(a) in vehicles:
+                v = vehicles[owner[a]]
+                bases.append((float(np.linalg.norm(np.subtract(wheels[a], wheels[b]))), v.length))
+        wids = [w for w in wheels if w in by_id]
+        if wids:
+            xy, ok = wheel_contacts(cam, np.array([by_id[w][:4] for w in wids]), None)
+            cam_xy = cam.translation[:2]
+            for i, w in enumerate(wids):
+                if ok[i]:
+                    shifts.append(np.linalg.norm(np.subtract(wheels[w], cam_xy)) - np.linalg.norm(xy[i] - cam_xy))
+        vids = [v for v in vehicles if v in by_id]
+        if vids:
+            xy, ok = box_bottom_points(cam, np.array([by_id[v][:4] for v in vids]))
+            for i, v in enumerate(vids):
+                if ok[i]:
+                    c = np.array([vehicles[v].x, vehicles[v].y])
+                    box_shifts.append(np.linalg.norm(c - cam.translation[:2]) - np.linalg.norm(xy[i] - cam.translation[:2]))
+    if len(bases) < 2 or not widths:
+        raise ValueError("the train split holds too little 3D truth to fit a footprint prior "
+                         f"({len(widths)} vehicles, {len(bases)} visible couples)")
+    wb = np.array(bases)
+    slope, offset = np.polyfit(wb[:, 0], wb[:, 1], 1)
+    return FootprintPrior(width=float(np.median(widths)), length=float(np.median(lengths)),
+                          wheelbase=float(np.median(wb[:, 0])), length_slope=float(slope), length_offset=float(offset),
+                          track_inset=float(np.median(insets)) if insets else 0.0,
+                          contact_shift=float(np.median(shifts)) if shifts else 0.0,
+                          box_shift=float(np.median(box_shifts)) if box_shifts else 0.0,
+                          height=float(np.median(heights)))

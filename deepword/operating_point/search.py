@@ -1,0 +1,172 @@
+"""The detector's operating point: one score threshold and one minimum box side per class, chosen on the val
+split by the end-to-end pair_f1 of the bundle's end-to-end method (the shipped relation model, with the IoU rule for
+the wheels it leaves unclaimed by default: ``export.end_to_end``), and stored in the bundle's ``export.json``.
+
+Every detection down to the detector's ``score_threshold`` (0.1) is worth keeping for AP, which integrates
+over all scores; a relation network fed all of them sees dozens of weak boxes per image, and each weak
+vehicle box that overlaps a real one can take its wheels. What to keep is a trade-off between missed and
+false boxes that only the end-to-end metric can weigh, and the two classes weigh it differently (a false
+vehicle steals wheels, a false wheel only adds one claim), hence one threshold per class.
+
+Size is the other axis. Most of the wheels a relation model wrongly claims are boxes of a few pixels: where
+nothing is, or beside a wheel too small to place within IoU 0.5. A wheel box that small is also one the
+evaluation does not score as truth (``eval.min_box_px``), so keeping it can cost precision and gain nothing;
+whether it does on a given detector is what the search finds out, per class (``min_side_grid``).
+
+The search is exhaustive over the grid (coordinate ascent is not enough: keeping a weak false vehicle can be
+harmless while weak wheels are dropped and harmful once they are kept, so each class's best threshold
+depends on the other's), on pair_f1 as ``deepword.metrics`` scores it: the evaluate stage's own definition, on
+the val split, never the test split. Among equally good points the one that keeps the most wins (the lowest
+thresholds, then the lowest minimum sides: more recall for the same F1).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from deepword.inference.runtime import keep_at, kept_mask
+from deepword.metrics import Counts, score_image, score_records
+from deepword.relation_graph import subgraph
+from deepword.word_format import Record
+
+__all__ = ["DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "end_to_end_pair_f1", "keep_at",
+           "search_operating_point"]
+
+DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """What a detection needs to be kept: a score of at least ``thresholds[class]`` and a shorter box side of at
+    least ``min_sides[class]`` image pixels."""
+    thresholds: tuple[float, ...]
+    min_sides: tuple[float, ...]
+
+    def keep(self, record: Record) -> Record:
+        return keep_at(record, self.thresholds, self.min_sides)
+
+
+def end_to_end_pair_f1(truths: Sequence[Record], detections: Sequence[Record], point: OperatingPoint,
+                       predict: Callable[[list[Record]], list[Record]], min_box_px: float,
+                       match_iou: float) -> float:
+    """pair_f1 (percent) of ``predict`` on the detections kept at ``point``, against ``truths``."""
+
+    preds = predict([point.keep(d) for d in detections])
+    return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()["pair_f1"]
+
+
+def search_operating_point(truths: Sequence[Record], detections: Sequence[Record],
+                           predict: Callable[[list[Record]], list[Record]], num_classes: int = 2,
+                           grid: Sequence[float] = DEFAULT_GRID,
+                           min_side_grid: Sequence[Sequence[float]] | None = None, min_box_px: float = 0.0,
+                           match_iou: float = 0.5) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
+    """(the operating point maximising end-to-end pair_f1, every evaluated {point: pair_f1}): every per-class
+    threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
+    minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image."""
+    grid = sorted({float(t) for t in grid})
+    if not grid:
+        raise ValueError("operating point: the threshold grid is empty")
+    sides = [[0.0]] * num_classes if min_side_grid is None else [sorted({float(s) for s in g}) for g in min_side_grid]
+    if len(sides) != num_classes or not all(sides):
+        raise ValueError(f"operating point: min_side_grid needs one non-empty list per class ({num_classes}), "
+                         f"got {min_side_grid}")
+    points = [OperatingPoint(t, m) for t in itertools.product(grid, repeat=num_classes)
+              for m in itertools.product(*sides)]
+    seen = dict(zip(points, SubsetScores(truths, detections, predict, min_box_px, match_iou).pair_f1(points),
+                    strict=True))
+    best = max(seen.values())
+    chosen = min((p for p, f1 in seen.items() if f1 == best),
+                 key=lambda p: (sum(p.thresholds), p.thresholds, sum(p.min_sides), p.min_sides))
+    return chosen, seen
+
+
+class SubsetScores:
+    """``end_to_end_pair_f1`` of many operating points, each image scored once per distinct subset of its boxes.
+
+    Thousands of points keep only a few distinct subsets of each image's detections, and an image's §7 counts
+    depend on nothing else (``predict`` must decide an image from its kept boxes alone, as ``SubsetRelation``
+    does): so each distinct subset is predicted and counted once, remembered by (image, kept boxes), and a point
+    costs a mask per image and a sum. Scored afresh per point, matching boxes for the counts took two thirds of
+    the search, and the relation model ran on a few new subsets at a time instead of full batches."""
+
+    def __init__(self, truths: Sequence[Record], detections: Sequence[Record],
+                 predict: Callable[[list[Record]], list[Record]], min_box_px: float, match_iou: float):
+        if len(truths) != len(detections):
+            raise ValueError(f"operating point: {len(truths)} labelled images but {len(detections)} detection records")
+        self.truths, self.detections, self.predict = list(truths), list(detections), predict
+        self.min_box_px, self.match_iou = min_box_px, match_iou
+        self.counts: dict[tuple[int, bytes], Counts] = {}
+
+    def pair_f1(self, points: Sequence[OperatingPoint]) -> list[float]:
+        """pair_f1 (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
+        call, so that it can batch them however it likes."""
+        keys = [self._keys(p) for p in points]
+        new = {}
+        for point, point_keys in zip(points, keys, strict=True):
+            for key in point_keys:
+                if key not in self.counts and key not in new:
+                    new[key] = point
+        if new:
+            preds = self.predict([point.keep(self.detections[i]) for (i, _), point in new.items()])
+            for (i, key), pred in zip(new, preds, strict=True):
+                self.counts[i, key] = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
+        return [sum((self.counts[k] for k in point_keys), Counts()).percentages()["pair_f1"] for point_keys in keys]
+
+    def _keys(self, point: OperatingPoint) -> list[tuple[int, bytes]]:
+        """(image index, which of its boxes ``point`` keeps) for every image."""
+        return [(i, kept_mask(d, point.thresholds, point.min_sides).tobytes()) for i, d in enumerate(self.detections)]
+
+
+class SubsetRelation:
+    """DeepWORD on subsets of each image's detections, building every image's graph once.
+
+    A graph's nodes are its boxes' crops and their pairwise priors, candidates and adjacency, each a function
+    of its own box or its own pair only, so the graph of a subset of the boxes is the full graph with the
+    other nodes' rows and columns removed. The search runs the relation model on many subsets of the same
+    detections; cropping them once makes it a matter of relation-model calls, and since many operating points
+    keep the same boxes of an image, each distinct subset is run once and remembered.
+
+    With ``embed`` (called once with {image: graph}, it returns an object with ``batch_size`` and
+    ``scores(images, box_ids)``: the export stage passes ``stages.export.embedded_boxes.EmbeddedBoxes`` over the torch
+    network the bundle's relation model was exported from) the backbone, nearly all of the model's cost, runs once
+    per box too, and a subset costs only the graph part; without it every subset goes to ``relation`` (``OnnxRelation``) whole. ``progress(done, total)``
+    is called after each batch of new subsets."""
+
+    def __init__(self, relation, detections: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
+                 batch_size: int = 16, embed: Callable[[dict], object] | None = None,
+                 progress: Callable[[int, int], None] | None = None):
+        self.relation, self.batch_size, self.progress = relation, batch_size, progress
+        self.predicted: dict[tuple[str, tuple[int, ...]], Record] = {}
+        self.graphs = {d.image: relation.graph(d, load_rgb(d)) for d in detections}
+        # a detection record's box ids are its rows (detections_to_record numbers them 0..N-1)
+        for d in detections:
+            if not np.array_equal(d.box_ids, np.arange(len(d.boxes))):
+                raise ValueError(f"{d.image}: detection box ids must be 0..N-1 (as detections_to_record writes them)")
+        self.embedded = None
+        if embed is not None:
+            self.embedded = embed(self.graphs)
+            self.batch_size = self.embedded.batch_size
+
+    def subgraph(self, record: Record):
+        return subgraph(self.graphs[record.image], record.box_ids)
+
+    def __call__(self, records: list[Record]) -> list[Record]:
+        keys = [(r.image, tuple(int(i) for i in r.box_ids)) for r in records]
+        pending = list({k: r for k, r in zip(keys, records, strict=True) if k not in self.predicted}.items())
+        pending.sort(key=lambda item: len(item[0][1]))  # batches of like sizes: less padding
+        for start in range(0, len(pending), self.batch_size):
+            part = pending[start:start + self.batch_size]
+            chunk = [r for _, r in part]
+            if self.embedded is None:
+                preds = self.relation.predict_graphs(chunk, [self.subgraph(r) for r in chunk])
+            else:
+                preds = self.relation.decide(chunk, self.embedded.scores([r.image for r in chunk],
+                                                                         [r.box_ids for r in chunk]))
+            self.predicted.update(zip((k for k, _ in part), preds, strict=True))
+            if self.progress is not None:
+                self.progress(start + len(part), len(pending))
+        return [self.predicted[k] for k in keys]

@@ -1,0 +1,114 @@
+"""Top-view figures in the style of the paper's Fig. 1: the ego car (the outline of its camera rig, its nose
+forward) with range rings around the vehicle frame's origin, true footprints (green), estimated footprints
+coloured by the camera whose estimate leads them (thicker where two or more cameras saw the vehicle), each with
+an arrow to its front where wheel roles gave the direction or a bare axis line where they did not, wheel
+contact points (black dots), and a legend."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from deepword.format_3d import Box3D
+
+TRUE_RGB = (40, 170, 60)
+ESTIMATE_RGB = (235, 120, 20)   # an estimate without a known camera
+CAMERA_RGB = {"front": (31, 119, 180), "left": (148, 103, 189), "right": (214, 39, 40), "rear": (235, 120, 20)}
+EGO_RGB = (95, 95, 95)
+WHEEL_RGB = (0, 0, 0)
+GRID_RGB = (215, 215, 215)
+TEXT_RGB = (60, 60, 60)
+TITLE_PX = 24
+LEGEND_PX = 40
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def camera_colour(name: str | None) -> tuple[int, int, int]:
+    return CAMERA_RGB.get(name or "", ESTIMATE_RGB)
+
+
+def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, rig_xy: np.ndarray,
+             title: str, half_extent_m: float = 14.0, size_px: int = 420, cameras: list | None = None,
+             directed: list[bool] | None = None, seen_by: list[int] | None = None,
+             legend: bool = True) -> np.ndarray:
+    """An RGB top view centred on the ego's rig: x forward is up, y left is left. ``cameras``: per estimate the
+    camera (name) whose estimate leads it (its colour); ``directed``: per estimate whether its heading points to
+    the front (an arrow) or only the axis is known (a line); ``seen_by``: per estimate how many cameras saw it."""
+    legend_px = LEGEND_PX if legend else 0
+    img = np.full((TITLE_PX + size_px + legend_px, size_px, 3), 255, np.uint8)
+    scale = size_px / (2 * half_extent_m)
+    centre = np.mean(rig_xy, axis=0) if len(rig_xy) else np.zeros(2)
+
+    def px(xy) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - centre
+        return np.stack([size_px / 2 - xy[:, 1] * scale, TITLE_PX + size_px / 2 - xy[:, 0] * scale], 1)
+
+    def fixed(points) -> np.ndarray:
+        return np.round(px(points) * 16).astype(np.int32)
+
+    def poly(points, colour, thick):
+        cv2.polylines(img, [fixed(points)], True, colour, thick, cv2.LINE_AA, shift=4)
+
+    origin = px([0.0, 0.0])[0]
+    for r in range(5, int(half_extent_m * 1.5) + 1, 5):  # range rings every 5 m around the vehicle frame's origin
+        cv2.circle(img, (int(round(origin[0] * 16)), int(round(origin[1] * 16))), int(round(r * scale * 16)),
+                   GRID_RGB, 1, cv2.LINE_AA, shift=4)
+        label = px([r / np.sqrt(2), -r / np.sqrt(2)])[0]
+        if TITLE_PX + 8 < label[1] < TITLE_PX + size_px - 4 and label[0] < size_px - 30:
+            cv2.putText(img, f"{r} m", (int(label[0]) + 2, int(label[1]) - 2), FONT, 0.33, (150, 150, 150), 1,
+                        cv2.LINE_AA)
+    if len(rig_xy) >= 2:
+        lo, hi = rig_xy.min(axis=0), rig_xy.max(axis=0)
+        lo, hi = lo - 0.15, hi + 0.15
+        nose = hi[0] + 0.35
+        body = np.array([[hi[0], hi[1]], [nose, (hi[1] + lo[1]) / 2], [hi[0], lo[1]], [lo[0], lo[1]], [lo[0], hi[1]]])
+        cv2.fillPoly(img, [fixed(body)], EGO_RGB, cv2.LINE_AA, shift=4)
+    elif len(rig_xy) == 1:  # a single camera: its position
+        c = px(rig_xy)[0]
+        cv2.circle(img, (int(c[0]), int(c[1])), 5, EGO_RGB, -1, cv2.LINE_AA)
+    for b in truth:
+        poly(b.corners(), TRUE_RGB, 2)
+        tip = px([b.x + np.cos(b.yaw) * b.length / 2, b.y + np.sin(b.yaw) * b.length / 2])[0]
+        cv2.circle(img, (int(tip[0]), int(tip[1])), 3, TRUE_RGB, -1, cv2.LINE_AA)   # the true front
+    for i, b in enumerate(estimates):
+        colour = camera_colour(cameras[i] if cameras else None)
+        thick = 2 if seen_by and seen_by[i] > 1 else 1
+        poly(b.corners(), colour, thick)
+        axis = np.array([np.cos(b.yaw), np.sin(b.yaw)]) * b.length / 2
+        if directed and directed[i]:
+            ends = px([[b.x, b.y], [b.x, b.y] + axis]).astype(int)
+            cv2.arrowedLine(img, tuple(ends[0]), tuple(ends[1]), colour, 1, cv2.LINE_AA, tipLength=0.35)
+        else:
+            ends = px([[b.x, b.y] - axis, [b.x, b.y] + axis]).astype(int)
+            cv2.line(img, tuple(ends[0]), tuple(ends[1]), colour, 1, cv2.LINE_AA)
+    for c in px(contacts) if len(contacts) else []:
+        cv2.circle(img, (int(c[0]), int(c[1])), 2, WHEEL_RGB, -1, cv2.LINE_AA)
+    cv2.putText(img, title, (6, 17), FONT, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    if legend:
+        draw_legend(img, TITLE_PX + size_px, camera_names=[c for c in CAMERA_RGB if not cameras or c in cameras],
+                    truth=bool(truth))
+    return img
+
+
+def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool = True) -> None:
+    """Two legend rows under a top view: truth / ego / contacts / arrow-vs-line, then the cameras' colours."""
+    cv2.line(img, (0, top), (img.shape[1], top), GRID_RGB, 1)
+    x, y = 6, top + 14
+
+    def entry(x, label, draw):
+        draw(x)
+        cv2.putText(img, label, (x + 16, y + 4), FONT, 0.33, TEXT_RGB, 1, cv2.LINE_AA)
+        return x + 22 + cv2.getTextSize(label, FONT, 0.33, 1)[0][0] + 8
+
+    if truth:
+        x = entry(x, "truth (dot: front)", lambda x: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), TRUE_RGB, 2))
+    x = entry(x, "ego", lambda x: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), EGO_RGB, -1))
+    x = entry(x, "wheel contact", lambda x: cv2.circle(img, (x + 6, y), 2, WHEEL_RGB, -1, cv2.LINE_AA))
+    x = entry(x, "front (roles)", lambda x: cv2.arrowedLine(img, (x, y), (x + 12, y), TEXT_RGB, 1, cv2.LINE_AA,
+                                                             tipLength=0.4))
+    entry(x, "axis only", lambda x: cv2.line(img, (x, y), (x + 12, y), TEXT_RGB, 1, cv2.LINE_AA))
+    x, y = 6, top + 30
+    cv2.putText(img, "estimates by camera:", (x, y + 4), FONT, 0.33, TEXT_RGB, 1, cv2.LINE_AA)
+    x += cv2.getTextSize("estimates by camera:", FONT, 0.33, 1)[0][0] + 8
+    for name in camera_names:
+        x = entry(x, name, lambda x, n=name: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), camera_colour(n), 1))
