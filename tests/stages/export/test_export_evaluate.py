@@ -105,7 +105,6 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
 
     from deepword.word_format.dataset import open_dataset
     from stages.evaluate import methods
-    from stages.inference import runtime
 
     class FakeDetector:
         """Each test image's true boxes as detections scored 0.2 and 0.6 in turn; 0.5 the operating point."""
@@ -124,7 +123,7 @@ def test_held_out_ap_sweeps_every_detection_while_relations_see_the_operating_po
     from omegaconf import OmegaConf
 
     sessions = []
-    monkeypatch.setattr(runtime, "OnnxDetector", FakeDetector)
+    monkeypatch.setattr(methods, "OnnxDetector", FakeDetector)  # the name evaluate builds its detector with
     dataset = open_dataset(upstream["data"])
     ctx = methods.EvalContext(cfg=OmegaConf.create({"threads": 2}), seed=0,
                               inputs={**upstream, "export": upstream["data"]}, dataset=dataset, priors=None)
