@@ -1,13 +1,17 @@
 """Fisheye camera models and calibrations: the one home of projection and back-projection.
 
-Two lens models, both radial in the angle theta between a ray and the optical axis:
+Two lens models, both radial in the angle theta between a ray and the optical axis, each one ``LensModel``
+class (registered in ``LENS_MODELS`` by its calibration name):
 
 - ``kannala_brandt`` -- OpenCV's ``cv2.fisheye`` model: r(theta) = theta + k1 theta^3 + k2 theta^5 +
   k3 theta^7 + k4 theta^9; u = fx r x/chi + cx, v = fy r y/chi + cy (chi = sqrt(x^2 + y^2)).
 - ``radial_poly`` -- WoodScape's model: rho(theta) = k1 theta + k2 theta^2 + k3 theta^3 + k4 theta^4 in
   pixels; u = rho x/chi + width/2 + cx_offset - 0.5, v = rho y/chi * aspect_ratio + height/2 + cy_offset - 0.5.
 
-Both are one polynomial in theta followed by a diagonal scale and a principal point (``FisheyeLens``).
+Both are one polynomial in theta followed by a diagonal scale and a principal point (``FisheyeLens``). A
+``LensModel`` says which calibration fields its model needs and which must be positive (``deepword.format_3d``
+checks a calibration with them), builds the lens of a calibration, and writes the calibration of a lens the
+generator drew (``stages.data.camera``): adding a lens model is one class here.
 theta = atan2(chi, z), so rays beyond 90 deg off-axis (a 190 deg lens sees them) project correctly and rays
 behind the camera are not mirrored in front of it, unlike ``cv2.fisheye.projectPoints`` (atan(chi/z)).
 
@@ -28,12 +32,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
-MODELS = ("kannala_brandt", "radial_poly")
-KANNALA_BRANDT_FIELDS = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
-RADIAL_POLY_FIELDS = ("k1", "k2", "k3", "k4", "cx_offset", "cy_offset", "aspect_ratio")
 BOX_TO_IMAGE = -0.5  # add to a box coordinate (pixel edges) to get an image coordinate (pixel centres)
 _TABLE_SIZE = 4096   # samples of the inverse lens table (refined by Newton steps)
 
@@ -109,15 +111,90 @@ def radial_poly_lens(k1, k2, k3, k4, cx_offset, cy_offset, aspect_ratio, width, 
                        centre=(width / 2 + cx_offset - 0.5, height / 2 + cy_offset - 0.5))
 
 
+# --- lens models: one class each, registered by their calibration name ----------------------------------
+
+LENS_MODELS: dict[str, type[LensModel]] = {}
+
+
+class LensModel:
+    """A calibration's lens model (``calibration.intrinsic.model``). A subclass names itself (``name``, which
+    registers it in ``LENS_MODELS``), lists the intrinsic fields it reads beside ``width`` and ``height``
+    (``fields``) and those that must be positive (``positive``), and implements ``lens`` (the calibration's
+    ``FisheyeLens``) and ``intrinsic`` (the calibration of a lens with a given radial shape, for the generator)."""
+
+    name: ClassVar[str]
+    fields: ClassVar[tuple[str, ...]]
+    positive: ClassVar[tuple[str, ...]]
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.name in LENS_MODELS:
+            raise ValueError(f"lens model {cls.name!r} is registered twice ({LENS_MODELS[cls.name].__name__}, "
+                             f"{cls.__name__})")
+        LENS_MODELS[cls.name] = cls
+
+    @classmethod
+    def lens(cls, intrinsic: dict) -> FisheyeLens:
+        """The lens of a validated ``intrinsic`` dict of this model."""
+        raise NotImplementedError
+
+    @classmethod
+    def intrinsic(cls, poly: tuple[float, ...], gain: float, aspect: float, centre_offset: tuple[float, float],
+                  width: int, height: int) -> dict:
+        """The ``intrinsic`` fields (``model`` first, without width and height) of a lens whose radius is ``gain``
+        times the polynomial ``poly`` in theta (coefficients of theta^0, theta^1, ..., the theta coefficient 1, in
+        the form this model can hold) in pixels, with a pixel aspect ratio ``aspect`` (y over x) and its principal
+        point ``centre_offset`` pixels from the image centre."""
+        raise NotImplementedError
+
+
+class KannalaBrandt(LensModel):
+    """OpenCV's ``cv2.fisheye`` model: r(theta) = theta + k1 theta^3 + k2 theta^5 + k3 theta^7 + k4 theta^9."""
+
+    name = "kannala_brandt"
+    fields = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
+    positive = ("fx", "fy")
+
+    @classmethod
+    def lens(cls, intrinsic: dict) -> FisheyeLens:
+        return kannala_brandt_lens(*(float(intrinsic[k]) for k in cls.fields))
+
+    @classmethod
+    def intrinsic(cls, poly, gain, aspect, centre_offset, width, height) -> dict:
+        return {"model": cls.name, "fx": gain, "fy": gain * aspect, "cx": (width - 1) / 2 + centre_offset[0],
+                "cy": (height - 1) / 2 + centre_offset[1], "k1": poly[3], "k2": poly[5], "k3": poly[7], "k4": poly[9]}
+
+
+class RadialPoly(LensModel):
+    """WoodScape's model: rho(theta) = k1 theta + k2 theta^2 + k3 theta^3 + k4 theta^4 pixels."""
+
+    name = "radial_poly"
+    fields = ("k1", "k2", "k3", "k4", "cx_offset", "cy_offset", "aspect_ratio")
+    positive = ("k1", "aspect_ratio")
+
+    @classmethod
+    def lens(cls, intrinsic: dict) -> FisheyeLens:
+        return radial_poly_lens(*(float(intrinsic[k]) for k in cls.fields),
+                                float(intrinsic["width"]), float(intrinsic["height"]))
+
+    @classmethod
+    def intrinsic(cls, poly, gain, aspect, centre_offset, width, height) -> dict:
+        if poly[1] != 1.0:
+            raise ValueError(f"radial_poly: the shape polynomial's theta coefficient must be 1 (gain scales it), got {poly}")
+        return {"model": cls.name, "k1": gain, "k2": gain * poly[2], "k3": gain * poly[3], "k4": gain * poly[4],
+                "cx_offset": centre_offset[0], "cy_offset": centre_offset[1], "aspect_ratio": aspect}
+
+
+def lens_model(name) -> type[LensModel]:
+    """The ``LensModel`` class of a calibration model name; a clear error for an unknown one."""
+    if not isinstance(name, str) or name not in LENS_MODELS:
+        raise ValueError(f"unknown lens model {name!r}; known: {tuple(LENS_MODELS)}")
+    return LENS_MODELS[name]
+
+
 def lens_from_intrinsic(intrinsic: dict) -> FisheyeLens:
     """The lens of a calibration's ``intrinsic`` dict (already validated: see ``deepword.format_3d``)."""
-    model = intrinsic["model"]
-    if model == "kannala_brandt":
-        return kannala_brandt_lens(*(float(intrinsic[k]) for k in KANNALA_BRANDT_FIELDS))
-    if model == "radial_poly":
-        return radial_poly_lens(*(float(intrinsic[k]) for k in RADIAL_POLY_FIELDS),
-                                float(intrinsic["width"]), float(intrinsic["height"]))
-    raise ValueError(f"unknown lens model {model!r}; known: {MODELS}")
+    return lens_model(intrinsic["model"]).lens(intrinsic)
 
 
 # --- rotations ----------------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ calibration or 3D box is reported with file, line and field like any other probl
 them is valid. Stages that need them get them through ``record_camera`` and ``record_objects_3d``, which
 say which record lacks them.
 
-    "calibration": {"intrinsic": {"model": "radial_poly" | "kannala_brandt", ..., "width": W, "height": H},
+    "calibration": {"intrinsic": {"model": <a deepword.cameras.LENS_MODELS name>, ..., "width": W, "height": H},
                     "extrinsic": {"quaternion": [qx, qy, qz, qw], "translation": [x, y, z]}}
     "objects_3d": {"<vehicle box_id>": {"center": [x, y, z], "size": [l, w, h], "yaw": rad},
                    "<wheel box_id>": {"contact": [x, y]}}
@@ -21,13 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deepword.cameras import (
-    KANNALA_BRANDT_FIELDS,
-    MODELS,
-    RADIAL_POLY_FIELDS,
-    Camera,
-    camera_from_calibration,
-)
+from deepword.cameras import LENS_MODELS, Camera, camera_from_calibration
 
 VEHICLE, WHEEL = 0, 1  # class ids of docs/design.md §4 (deepword.word_format imports this module)
 
@@ -50,9 +44,10 @@ def check_calibration(cal, width: int, height: int, fail: Callable[[str, str], N
     if not isinstance(ext, dict):
         fail("calibration.extrinsic", "missing or not an object")
     model = intr.get("model")
-    if model not in MODELS:
-        fail("calibration.intrinsic.model", f"must be one of {MODELS}, got {model!r}")
-    names = KANNALA_BRANDT_FIELDS if model == "kannala_brandt" else RADIAL_POLY_FIELDS
+    if not isinstance(model, str) or model not in LENS_MODELS:
+        fail("calibration.intrinsic.model", f"must be one of {tuple(LENS_MODELS)}, got {model!r}")
+    lens_model = LENS_MODELS[model]   # its fields and their checks come from the model's class (deepword.cameras)
+    names = lens_model.fields
     for name in (*names, "width", "height"):
         if name not in intr:
             fail(f"calibration.intrinsic.{name}", f"missing (the {model} model needs {', '.join(names)}, width, height)")
@@ -61,7 +56,7 @@ def check_calibration(cal, width: int, height: int, fail: Callable[[str, str], N
     for name, size in (("width", width), ("height", height)):
         if int(intr[name]) != size or intr[name] != int(intr[name]):
             fail(f"calibration.intrinsic.{name}", f"{intr[name]!r} but the image is {width}x{height}")
-    for name in ("fx", "fy") if model == "kannala_brandt" else ("k1", "aspect_ratio"):
+    for name in lens_model.positive:
         if intr[name] <= 0:
             fail(f"calibration.intrinsic.{name}", f"must be positive, got {intr[name]!r}")
     if "fov_deg" in intr and (not _number(intr["fov_deg"]) or not 0 < intr["fov_deg"] <= 360):

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from deepword.cameras import Camera, kannala_brandt_lens, mount_rotation, radial_poly_lens
+from deepword.cameras import Camera, lens_from_intrinsic, lens_model, mount_rotation
 
 # The shape of WoodScape's published radial polynomials relative to k1 (its front camera: k2/k1 = -0.094,
 # k3/k1 = 0.142, k4/k1 = -0.021), widened: the radial_poly family varies around real lenses.
@@ -25,6 +25,20 @@ RADIAL_POLY_SHAPE = {"k2": (-0.15, -0.03), "k3": (0.07, 0.2), "k4": (-0.04, -0.0
 # Kannala-Brandt distortion coefficients of 170-200 deg lenses (cv2.fisheye calibrations are of this order).
 KANNALA_BRANDT_D = {"k1": (-0.02, 0.06), "k2": (-0.012, 0.004), "k3": (-0.001, 0.001), "k4": (-0.0002, 0.0002)}
 MONOTONE_MARGIN = math.radians(5)   # a drawn lens must stay one-to-one this far beyond its field of view
+
+
+def kannala_brandt_shape(rng: np.random.Generator) -> tuple[float, ...]:
+    d = [float(rng.uniform(*KANNALA_BRANDT_D[k])) for k in ("k1", "k2", "k3", "k4")]
+    return (0.0, 1.0, 0.0, d[0], 0.0, d[1], 0.0, d[2], 0.0, d[3])
+
+
+def radial_poly_shape(rng: np.random.Generator) -> tuple[float, ...]:
+    return (0.0, 1.0, *(float(rng.uniform(*RADIAL_POLY_SHAPE[k])) for k in ("k2", "k3", "k4")))
+
+
+# The lens families the generator draws (``data.lens.families``): a random radial polynomial of each lens model
+# (deepword.cameras.LENS_MODELS), theta coefficient 1; ``sample_intrinsic`` scales it to the image
+LENS_SHAPES = {"kannala_brandt": kannala_brandt_shape, "radial_poly": radial_poly_shape}
 
 
 def nominal_camera(name: str, cam_cfg: dict, width: int, height: int, reference_size) -> Camera:
@@ -41,12 +55,7 @@ def nominal_camera(name: str, cam_cfg: dict, width: int, height: int, reference_
 
 def _camera(name, intrinsic: dict, position, yaw, pitch, roll) -> Camera:
     w, h = int(intrinsic["width"]), int(intrinsic["height"])
-    if intrinsic["model"] == "kannala_brandt":
-        lens = kannala_brandt_lens(*(intrinsic[k] for k in ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")))
-    else:
-        lens = radial_poly_lens(*(intrinsic[k] for k in ("k1", "k2", "k3", "k4", "cx_offset", "cy_offset",
-                                                         "aspect_ratio")), w, h)
-    return Camera(name=name, lens=lens, width=w, height=h, rotation=mount_rotation(yaw, pitch, roll),
+    return Camera(name=name, lens=lens_from_intrinsic(intrinsic), width=w, height=h, rotation=mount_rotation(yaw, pitch, roll),
                   translation=np.asarray(position, dtype=np.float64), fov_deg=float(intrinsic["fov_deg"]),
                   intrinsic=intrinsic)
 
@@ -65,26 +74,17 @@ def sample_intrinsic(rng: np.random.Generator, family: str, width: int, height: 
     off = float(lens_cfg["principal_offset"]) * width
     cx_off, cy_off = (float(v) for v in rng.uniform(-off, off, 2))
     aspect = float(rng.uniform(*lens_cfg["pixel_aspect"]))
+    if family not in LENS_SHAPES:
+        raise ValueError(f"data.lens.families: unknown lens family {family!r} ({', '.join(LENS_SHAPES)})")
     for _ in range(100):
-        if family == "kannala_brandt":
-            d = [float(rng.uniform(*KANNALA_BRANDT_D[k])) for k in ("k1", "k2", "k3", "k4")]
-            poly = (0.0, 1.0, 0.0, d[0], 0.0, d[1], 0.0, d[2], 0.0, d[3])
-        elif family == "radial_poly":
-            shape = [1.0] + [float(rng.uniform(*RADIAL_POLY_SHAPE[k])) for k in ("k2", "k3", "k4")]
-            poly = (0.0, *shape)
-        else:
-            raise ValueError(f"data.lens.families: unknown lens family {family!r} (kannala_brandt, radial_poly)")
+        poly = LENS_SHAPES[family](rng)
         if _radius_is_monotone(poly, theta_max + MONOTONE_MARGIN):
             break
     else:  # pragma: no cover - the ranges above make a monotone draw all but certain
         raise RuntimeError(f"no one-to-one {family} lens drawn for a {fov:.0f} deg field of view")
     gain = edge_radius / float(np.polynomial.polynomial.polyval(theta_max, poly))
     common = {"width": int(width), "height": int(height), "fov_deg": round(fov, 3)}
-    if family == "kannala_brandt":
-        return {"model": family, "fx": gain, "fy": gain * aspect, "cx": (width - 1) / 2 + cx_off,
-                "cy": (height - 1) / 2 + cy_off, "k1": d[0], "k2": d[1], "k3": d[2], "k4": d[3], **common}
-    return {"model": family, "k1": gain, "k2": gain * shape[1], "k3": gain * shape[2], "k4": gain * shape[3],
-            "cx_offset": cx_off, "cy_offset": cy_off, "aspect_ratio": aspect, **common}
+    return {**lens_model(family).intrinsic(poly, gain, aspect, (cx_off, cy_off), width, height), **common}
 
 
 def sample_image_size(rng: np.random.Generator, base_width: int, lens_cfg: dict) -> tuple[int, int]:

@@ -122,3 +122,40 @@ def test_pixel_rays_point_where_the_pixels_are():
     uv, in_fov = cam.project(cam.translation + 3.0 * rays[ys[pick], xs[pick]].astype(np.float64))
     assert in_fov.all()
     np.testing.assert_allclose(uv, np.stack([xs[pick], ys[pick]], 1), atol=1e-3)
+
+
+def test_a_lens_model_is_one_class_the_calibration_checks_and_cameras_use():
+    """A ``LensModel`` subclass registers itself: ``deepword.format_3d`` checks a calibration's fields by it and
+    ``camera_from_calibration`` builds its lens, with no other change."""
+    from deepword.cameras import LENS_MODELS, FisheyeLens, LensModel, lens_from_intrinsic
+    from deepword.format_3d import check_calibration
+
+    class Equidistant(LensModel):   # rho = f theta
+        name, fields, positive = "test_equidistant", ("f",), ("f",)
+
+        @classmethod
+        def lens(cls, intrinsic):
+            return FisheyeLens(poly=(0.0, float(intrinsic["f"])), scale=(1.0, 1.0),
+                               centre=(intrinsic["width"] / 2 - 0.5, intrinsic["height"] / 2 - 0.5))
+
+    def fail(field, message):
+        raise ValueError(f"{field}: {message}")
+
+    try:
+        cal = {"intrinsic": {"model": "test_equidistant", "f": 200.0, "width": 640, "height": 480},
+               "extrinsic": {"quaternion": [0.0, 0.0, 0.0, 1.0], "translation": [0.0, 0.0, 1.0]}}
+        check_calibration(cal, 640, 480, fail)
+        assert lens_from_intrinsic(cal["intrinsic"]).poly == (0.0, 200.0)
+        x, y = camera_from_calibration(cal).lens.project(np.array([[1.0, 0.0, 1.0]]))[0]
+        assert x == pytest.approx(319.5 + 200.0 * math.pi / 4) and y == pytest.approx(239.5)
+        with pytest.raises(ValueError, match=r"calibration.intrinsic.f: missing \(the test_equidistant model needs f"):
+            check_calibration({**cal, "intrinsic": {k: v for k, v in cal["intrinsic"].items() if k != "f"}}, 640, 480,
+                              fail)
+        with pytest.raises(ValueError, match="calibration.intrinsic.f: must be positive"):
+            check_calibration({**cal, "intrinsic": {**cal["intrinsic"], "f": -1.0}}, 640, 480, fail)
+        with pytest.raises(ValueError, match="registered twice"):
+            type("Again", (LensModel,), {"name": "test_equidistant"})
+    finally:
+        LENS_MODELS.pop("test_equidistant", None)
+    with pytest.raises(ValueError, match="must be one of"):
+        check_calibration(cal, 640, 480, fail)
