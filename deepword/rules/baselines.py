@@ -37,6 +37,18 @@ BASELINES_FILE = "baselines.json"
 MAX_WHEELS_PER_VEHICLE = 4
 MAX_COUPLES_PER_VEHICLE = 2
 _INFEASIBLE = 1e6
+# the rules fitted on train, by name (each class registers itself with ``@rule``): what ``baselines.json`` and a
+# bundle's end-to-end fallback name, ``baseline_params`` writes and ``baseline_from_params`` rebuilds
+RULES: dict[str, type] = {}
+
+
+def rule(cls: type) -> type:
+    """Register a rule method class by its ``name``; the class gives ``to_params()`` (its fitted parameters as plain
+    JSON) and ``from_params(params, priors)`` (the rule again from them)."""
+    if cls.name in RULES:
+        raise ValueError(f"rule method {cls.name!r} is registered twice")
+    RULES[cls.name] = cls
+    return cls
 
 
 # --- shared pieces -------------------------------------------------------------------------------------
@@ -117,6 +129,7 @@ class CoupleRule:
 
 # --- the three methods ----------------------------------------------------------------------------------
 
+@rule
 @dataclass
 class Logic:
     """The paper's IoU rule."""
@@ -124,6 +137,13 @@ class Logic:
     iou_threshold: float
     couple_rule: CoupleRule
     name: str = "logic"
+
+    def to_params(self) -> dict:
+        return {"iou_threshold": self.iou_threshold, "couple_rule": asdict(self.couple_rule)}
+
+    @classmethod
+    def from_params(cls, params: dict, priors=None) -> Logic:
+        return cls(params["iou_threshold"], CoupleRule(**params["couple_rule"]))
 
     def owners(self, obj: Objects) -> np.ndarray:
         return argmax_owner(pairwise_iou(obj.w_xyxy, obj.v_xyxy), self.iou_threshold, strict=True)
@@ -239,6 +259,7 @@ def assign_with_capacity(cost: np.ndarray, none_cost: float) -> np.ndarray:
     return owner
 
 
+@rule
 @dataclass
 class LogicPlus:
     """Containment, lower part, bottom alignment, distance/size ratio and capacity-constrained assignment."""
@@ -248,6 +269,15 @@ class LogicPlus:
     size_stats: PairStats
     couple_rule: CoupleRule
     name: str = "logic_plus"
+
+    def to_params(self) -> dict:
+        return {"params": asdict(self.params), "ratio_stats": asdict(self.ratio_stats),
+                "size_stats": asdict(self.size_stats), "couple_rule": asdict(self.couple_rule)}
+
+    @classmethod
+    def from_params(cls, params: dict, priors=None) -> LogicPlus:
+        return cls(LogicPlusParams(**params["params"]), PairStats(**params["ratio_stats"]),
+                   PairStats(**params["size_stats"]), CoupleRule(**params["couple_rule"]))
 
     def cost(self, f: PairFeatures) -> np.ndarray:
         p = self.params
@@ -266,6 +296,7 @@ class LogicPlus:
         return as_prediction(obj, owner, self.couple_rule.couples(obj, owner))
 
 
+@rule
 @dataclass
 class PriorMethod:
     """Highest wheel-vehicle prior above a threshold; couples by the wheel-wheel prior."""
@@ -274,6 +305,15 @@ class PriorMethod:
     threshold: float
     couple_threshold: float
     name: str = "prior"
+
+    def to_params(self) -> dict:
+        return {"threshold": self.threshold, "couple_threshold": self.couple_threshold}
+
+    @classmethod
+    def from_params(cls, params: dict, priors=None) -> PriorMethod:
+        if priors is None:
+            raise ValueError("the prior baseline needs the priors (deepword.priors.load_priors)")
+        return cls(priors, params["threshold"], params["couple_threshold"])
 
     def scores(self, obj: Objects) -> np.ndarray:
         ratio = pairwise_distance_ratio(obj.v_xyxy, obj.w_xyxy, obj.rec.width, obj.rec.height).T
@@ -427,26 +467,15 @@ def fit_prior(images: list[TrainImage], priors, thresholds: Sequence[float],
 # --- persistence: fitted parameters as JSON, so inference can rebuild each method -------------------------
 
 def baseline_params(method) -> dict:
-    """The fitted parameters of a baseline as plain JSON."""
-    if isinstance(method, Logic):
-        return {"iou_threshold": method.iou_threshold, "couple_rule": asdict(method.couple_rule)}
-    if isinstance(method, LogicPlus):
-        return {"params": asdict(method.params), "ratio_stats": asdict(method.ratio_stats),
-                "size_stats": asdict(method.size_stats), "couple_rule": asdict(method.couple_rule)}
-    if isinstance(method, PriorMethod):
-        return {"threshold": method.threshold, "couple_threshold": method.couple_threshold}
-    raise TypeError(f"not a baseline: {method!r}")
+    """The fitted parameters of a baseline (a ``RULES`` method) as plain JSON."""
+    kind = RULES.get(getattr(method, "name", None))
+    if kind is None or not isinstance(method, kind):
+        raise TypeError(f"not a baseline: {method!r}")
+    return method.to_params()
 
 
 def baseline_from_params(name: str, params: dict, priors=None):
     """Rebuild a baseline from ``baseline_params`` output (``prior`` also needs the loaded priors)."""
-    if name == "logic":
-        return Logic(params["iou_threshold"], CoupleRule(**params["couple_rule"]))
-    if name == "logic_plus":
-        return LogicPlus(LogicPlusParams(**params["params"]), PairStats(**params["ratio_stats"]),
-                         PairStats(**params["size_stats"]), CoupleRule(**params["couple_rule"]))
-    if name == "prior":
-        if priors is None:
-            raise ValueError("the prior baseline needs the priors (deepword.priors.load_priors)")
-        return PriorMethod(priors, params["threshold"], params["couple_threshold"])
-    raise ValueError(f"unknown baseline {name!r}; have logic, logic_plus, prior")
+    if name not in RULES:
+        raise ValueError(f"unknown baseline {name!r}; have {', '.join(RULES)}")
+    return RULES[name].from_params(params, priors)

@@ -20,6 +20,7 @@ import numpy as np
 
 from deepword.inference.runtime import NoDetectorError, OnnxDetector, bundle_rule, deepword_method
 from deepword.rules.baselines import (
+    RULES,
     CoupleRule,
     SearchGrids,
     TrainImage,
@@ -153,8 +154,9 @@ def claim_fallback(name: str) -> Callable[[EvalContext], object | None]:
     return factory
 
 
-# rows fitted on the train sample alone (EvalContext.train): the held-out domain's rows reuse the in-domain fits
-FITTED_ON_TRAIN = ("logic", "logic_plus", "prior")
+# rows fitted on the train sample alone (EvalContext.train), the rule methods (deepword.rules.baselines.RULES): the
+# held-out domain's rows reuse the in-domain fits
+FITTED_ON_TRAIN = tuple(RULES)
 
 METHODS: dict[str, Callable[[EvalContext], object | None]] = {
     "logic": lambda ctx: fit_logic(ctx.train, ctx.couple_rule, ctx.grids.logic_iou),
