@@ -5,8 +5,8 @@ The search (``deepword.operating_point.search``) scores every point of a grid an
 stands on a plateau or on a ridge, and how much a threshold a little off would cost, is what a user tuning the
 bundle for other images wants to know; a table of 6,760 numbers does not say it, two heat maps do:
 
-- left: pair_f1 over the two classes' score thresholds, at the chosen minimum box sides;
-- right: pair_f1 over the two classes' minimum box sides, at the chosen thresholds.
+- left: the search's criterion (``CRITERION``, pair_f1) over the two classes' score thresholds, at the chosen minimum box sides;
+- right: the criterion over the two classes' minimum box sides, at the chosen thresholds.
 
 Both are cuts through the chosen point, which each marks. The markdown gives the chosen point, the best points of
 the search and the score with everything kept.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.operating_point.search import OperatingPoint
+from deepword.operating_point.search import CRITERION, OperatingPoint
 
 __all__ = ["side_surface", "threshold_surface", "operating_point_markdown", "plot_operating_point",
            "write_operating_point_report"]
@@ -27,7 +27,7 @@ __all__ = ["side_surface", "threshold_surface", "operating_point_markdown", "plo
 
 def _surface(seen: Mapping[OperatingPoint, float], axis: str, fixed: tuple[float, ...]
              ) -> tuple[list[float], list[float], np.ndarray]:
-    """(first class's values, second class's values, pair_f1[i_second, j_first]) over ``axis`` (``thresholds`` or
+    """(first class's values, second class's values, criterion[i_second, j_first]) over ``axis`` (``thresholds`` or
     ``min_sides``) of the two-class points whose other axis equals ``fixed``; NaN where a point was not scored."""
     other = "min_sides" if axis == "thresholds" else "thresholds"
     cut = {getattr(p, axis): f1 for p, f1 in seen.items() if getattr(p, other) == fixed}
@@ -42,13 +42,13 @@ def _surface(seen: Mapping[OperatingPoint, float], axis: str, fixed: tuple[float
 
 
 def threshold_surface(seen: Mapping[OperatingPoint, float], min_sides: tuple[float, ...]):
-    """val pair_f1 over both classes' score thresholds at ``min_sides``: (first class's thresholds, second
+    """val ``CRITERION`` over both classes' score thresholds at ``min_sides``: (first class's thresholds, second
     class's thresholds, grid[second, first])."""
     return _surface(seen, "thresholds", tuple(min_sides))
 
 
 def side_surface(seen: Mapping[OperatingPoint, float], thresholds: tuple[float, ...]):
-    """val pair_f1 over both classes' minimum box sides at ``thresholds``: (first class's sides, second class's
+    """val ``CRITERION`` over both classes' minimum box sides at ``thresholds``: (first class's sides, second class's
     sides, grid[second, first])."""
     return _surface(seen, "min_sides", tuple(thresholds))
 
@@ -88,13 +88,13 @@ def plot_operating_point(seen: Mapping[OperatingPoint, float], chosen: Operating
     xs, ys, grid = threshold_surface(seen, chosen.min_sides)
     image = _heatmap(left, xs, ys, grid, chosen.thresholds, f"{a} score threshold", f"{b} score threshold",
                      f"at minimum sides {a} {chosen.min_sides[0]:g} px, {b} {chosen.min_sides[1]:g} px", "{:.2f}")
-    fig.colorbar(image, ax=left, label="pair_f1 (%)")
+    fig.colorbar(image, ax=left, label=f"{CRITERION} (%)")
     xs, ys, grid = side_surface(seen, chosen.thresholds)
     image = _heatmap(right, xs, ys, grid, chosen.min_sides, f"{a} minimum box side (px)",
                      f"{b} minimum box side (px)",
                      f"at score thresholds {a} {chosen.thresholds[0]:.2f}, {b} {chosen.thresholds[1]:.2f}", "{:g}")
-    fig.colorbar(image, ax=right, label="pair_f1 (%)")
-    fig.suptitle(f"Operating point: end-to-end pair_f1{' of ' + method if method else ''} on {images} "
+    fig.colorbar(image, ax=right, label=f"{CRITERION} (%)")
+    fig.suptitle(f"Operating point: end-to-end {CRITERION}{' of ' + method if method else ''} on {images} "
                  f"(chosen: {seen[chosen]:.2f}, framed)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -104,7 +104,7 @@ def plot_operating_point(seen: Mapping[OperatingPoint, float], chosen: Operating
 def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: OperatingPoint, classes: Sequence[str],
                              at_score_threshold: float, method: str = "", alone: float | None = None,
                              top: int = 10, images: str = "the val split") -> str:
-    """The chosen point, the ``top`` best points of the search and the pair_f1 with every detection kept."""
+    """The chosen point, the ``top`` best points of the search and the ``CRITERION`` with every detection kept."""
     def point_cells(p: OperatingPoint) -> str:
         return " | ".join([f"{t:.2f}" for t in p.thresholds] + [f"{s:g}" for s in p.min_sides])
 
@@ -112,15 +112,15 @@ def operating_point_markdown(seen: Mapping[OperatingPoint, float], chosen: Opera
     ranked = sorted(seen.items(), key=lambda kv: (-kv[1], sum(kv[0].thresholds), kv[0].thresholds,
                                                   sum(kv[0].min_sides), kv[0].min_sides))
     lines = ["# Operating point", "",
-             f"Chosen on {images} by the end-to-end pair_f1{' of `' + method + '`' if method else ''}, over "
+             f"Chosen on {images} by the end-to-end {CRITERION}{' of `' + method + '`' if method else ''}, over "
              f"{len(seen)} points; among equals the one that keeps the most. `operating_point.png` shows the "
              "cuts through it.", "",
-             f"| | {head} | pair_f1 |", "|---" * (2 * len(classes) + 2) + "|",
+             f"| | {head} | {CRITERION} |", "|---" * (2 * len(classes) + 2) + "|",
              f"| **chosen** | {point_cells(chosen)} | **{seen[chosen]:.2f}** |"]
     if alone is not None:
         lines.append(f"| the relation model alone, same point | {point_cells(chosen)} | {alone:.2f} |")
     lines.append(f"| every detection kept | {' | '.join(['–'] * (2 * len(classes)))} | {at_score_threshold:.2f} |")
-    lines += ["", f"The {min(top, len(ranked))} best points:", "", f"| rank | {head} | pair_f1 |",
+    lines += ["", f"The {min(top, len(ranked))} best points:", "", f"| rank | {head} | {CRITERION} |",
               "|---" * (2 * len(classes) + 2) + "|"]
     lines += [f"| {i} | {point_cells(p)} | {f1:.2f} |" for i, (p, f1) in enumerate(ranked[:top], 1)]
     return "\n".join(lines) + "\n"

@@ -1,5 +1,5 @@
 """The detector's operating point: one score threshold and one minimum box side per class, chosen on the val
-split by the end-to-end pair_f1 of the bundle's end-to-end method (the shipped relation model, with the IoU rule for
+split by the end-to-end pair_f1 (``CRITERION``) of the bundle's end-to-end method (the shipped relation model, with the IoU rule for
 the wheels it leaves unclaimed by default: ``export.end_to_end``), and stored in the bundle's ``export.json``.
 
 Every detection down to the detector's ``score_threshold`` (0.1) is worth keeping for AP, which integrates
@@ -33,9 +33,13 @@ from deepword.metrics import Counts, score_image, score_records
 from deepword.relation_graph import subgraph
 from deepword.word_format import Record
 
-__all__ = ["DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "end_to_end_pair_f1", "keep_at",
-           "search_operating_point"]
+__all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "end_to_end_score",
+           "keep_at", "search_operating_point"]
 
+# The one selection criterion of the operating point: the §7 metric (``deepword.metrics``, percent) of the end-to-end
+# method on the val split that the search maximises; the export stage's metric keys, ``deepword tune``'s bundle
+# entries and the report's labels are named after it
+CRITERION = "pair_f1"
 DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
 
 
@@ -50,13 +54,13 @@ class OperatingPoint:
         return keep_at(record, self.thresholds, self.min_sides)
 
 
-def end_to_end_pair_f1(truths: Sequence[Record], detections: Sequence[Record], point: OperatingPoint,
+def end_to_end_score(truths: Sequence[Record], detections: Sequence[Record], point: OperatingPoint,
                        predict: Callable[[list[Record]], list[Record]], min_box_px: float,
                        match_iou: float) -> float:
-    """pair_f1 (percent) of ``predict`` on the detections kept at ``point``, against ``truths``."""
+    """``CRITERION`` (percent) of ``predict`` on the detections kept at ``point``, against ``truths``."""
 
     preds = predict([point.keep(d) for d in detections])
-    return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()["pair_f1"]
+    return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()[CRITERION]
 
 
 def search_operating_point(truths: Sequence[Record], detections: Sequence[Record],
@@ -64,7 +68,7 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
                            grid: Sequence[float] = DEFAULT_GRID,
                            min_side_grid: Sequence[Sequence[float]] | None = None, min_box_px: float = 0.0,
                            match_iou: float = 0.5) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
-    """(the operating point maximising end-to-end pair_f1, every evaluated {point: pair_f1}): every per-class
+    """(the operating point maximising the end-to-end ``CRITERION``, every evaluated {point: its value}): every per-class
     threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
     minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image."""
     grid = sorted({float(t) for t in grid})
@@ -76,7 +80,7 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
                          f"got {min_side_grid}")
     points = [OperatingPoint(t, m) for t in itertools.product(grid, repeat=num_classes)
               for m in itertools.product(*sides)]
-    seen = dict(zip(points, SubsetScores(truths, detections, predict, min_box_px, match_iou).pair_f1(points),
+    seen = dict(zip(points, SubsetScores(truths, detections, predict, min_box_px, match_iou).scores(points),
                     strict=True))
     best = max(seen.values())
     chosen = min((p for p, f1 in seen.items() if f1 == best),
@@ -85,7 +89,7 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
 
 
 class SubsetScores:
-    """``end_to_end_pair_f1`` of many operating points, each image scored once per distinct subset of its boxes.
+    """``end_to_end_score`` of many operating points, each image scored once per distinct subset of its boxes.
 
     Thousands of points keep only a few distinct subsets of each image's detections, and an image's §7 counts
     depend on nothing else (``predict`` must decide an image from its kept boxes alone, as ``SubsetRelation``
@@ -101,8 +105,8 @@ class SubsetScores:
         self.min_box_px, self.match_iou = min_box_px, match_iou
         self.counts: dict[tuple[int, bytes], Counts] = {}
 
-    def pair_f1(self, points: Sequence[OperatingPoint]) -> list[float]:
-        """pair_f1 (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
+    def scores(self, points: Sequence[OperatingPoint]) -> list[float]:
+        """``CRITERION`` (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
         call, so that it can batch them however it likes."""
         keys = [self._keys(p) for p in points]
         new = {}
@@ -114,7 +118,7 @@ class SubsetScores:
             preds = self.predict([point.keep(self.detections[i]) for (i, _), point in new.items()])
             for (i, key), pred in zip(new, preds, strict=True):
                 self.counts[i, key] = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
-        return [sum((self.counts[k] for k in point_keys), Counts()).percentages()["pair_f1"] for point_keys in keys]
+        return [sum((self.counts[k] for k in point_keys), Counts()).percentages()[CRITERION] for point_keys in keys]
 
     def _keys(self, point: OperatingPoint) -> list[tuple[int, bytes]]:
         """(image index, which of its boxes ``point`` keeps) for every image."""

@@ -43,9 +43,10 @@ from deepword.inference.runtime import (
 from deepword.metrics import score_records
 from deepword.operating_point.report import write_operating_point_report
 from deepword.operating_point.search import (
+    CRITERION,
     OperatingPoint,
     SubsetRelation,
-    end_to_end_pair_f1,
+    end_to_end_score,
     search_operating_point,
 )
 from deepword.paper import DSP_LATENCY
@@ -260,7 +261,7 @@ def detector_ap(detector_dir: Path) -> dict[str, float]:
 def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px: float, net=None,
                            tolerance: float = 1e-4, fallback=None, method_name: str = "") -> tuple[dict, dict, dict]:
     """Per-class score thresholds and minimum box sides of the exported detector, chosen on the val split by the
-    end-to-end pair_f1 of the exported DeepWORD model, with ``fallback``'s claims for the wheels it leaves unclaimed
+    end-to-end ``CRITERION`` (pair_f1) of the exported DeepWORD model, with ``fallback``'s claims for the wheels it leaves unclaimed
     when given (the bundle's end-to-end method; ``deepword.operating_point.search``); returns ({class: threshold},
     {class: minimum side in pixels}, metrics). With ``net``, the torch network the bundle's
     relation model was exported from, each box is embedded once (``stages.export.embedded_boxes``), after a
@@ -301,18 +302,18 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     floor = OperatingPoint(tuple([float(det_cfg["score_threshold"])] * len(classes)), tuple([0.0] * len(classes)))
     f1_floor = seen.get(floor)
     if f1_floor is None:
-        f1_floor = end_to_end_pair_f1(val, detections, floor, method, min_box_px, match_iou)
+        f1_floor = end_to_end_score(val, detections, floor, method, min_box_px, match_iou)
     # DeepWORD alone at the same point: what the fallback adds on val
-    alone = float(end_to_end_pair_f1(val, detections, chosen, relation, min_box_px, match_iou))
-    split_metrics["export.detector.val_pair_f1_deepword"] = alone
+    alone = float(end_to_end_score(val, detections, chosen, relation, min_box_px, match_iou))
+    split_metrics[f"export.detector.val_{CRITERION}_deepword"] = alone
     write_operating_point_report(out_dir / "artifacts", seen, chosen, classes, f1_floor, method_name,
                                  alone if fallback is not None else None)
     thresholds = dict(zip(classes, chosen.thresholds, strict=True))
     min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},
                **{f"export.detector.min_side.{c}": float(m) for c, m in min_sides.items()},
-               "export.detector.val_pair_f1": float(seen[chosen]),
-               "export.detector.val_pair_f1_at_score_threshold": float(f1_floor),
+               f"export.detector.val_{CRITERION}": float(seen[chosen]),
+               f"export.detector.val_{CRITERION}_at_score_threshold": float(f1_floor),
                "export.detector.operating_point_evaluations": float(len(seen)),
                "export.detector.operating_point_relation_runs": float(len(relation.predicted)), **split_metrics}
     return thresholds, min_sides, metrics

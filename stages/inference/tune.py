@@ -38,10 +38,11 @@ from deepword.inference.runtime import (
 )
 from deepword.operating_point.report import write_operating_point_report
 from deepword.operating_point.search import (
+    CRITERION,
     DEFAULT_GRID,
     OperatingPoint,
     SubsetRelation,
-    end_to_end_pair_f1,
+    end_to_end_score,
     search_operating_point,
 )
 from deepword.progress import ProgressCounter, progress_lines
@@ -140,7 +141,7 @@ def tune(args) -> dict:
     pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
     method = relation if name in METHOD_VARIANTS else batch_with_fallback(relation, bundle_rule(export, FALLBACKS[name][1]))
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())
-    print(f"searching {points} operating points by the pair_f1 of {name} ...", file=sys.stderr)
+    print(f"searching {points} operating points by the {CRITERION} of {name} ...", file=sys.stderr)
     chosen, seen = search_operating_point(truths, detections, method, len(classes), thresholds,
                                           [sides[c] for c in classes], min_box_px, match_iou)
     progress.close()
@@ -148,8 +149,8 @@ def tune(args) -> dict:
     before = OperatingPoint(shipped_thresholds or (detector.score_threshold,) * len(classes), shipped_sides)
     floor = OperatingPoint((detector.score_threshold,) * len(classes), (0.0,) * len(classes))
     # either may lie off the searched grid
-    f1_before, f1_floor = (seen[p] if p in seen else end_to_end_pair_f1(truths, detections, p, method, min_box_px,
-                                                                         match_iou) for p in (before, floor))
+    f1_before, f1_floor = (seen[p] if p in seen else end_to_end_score(truths, detections, p, method, min_box_px,
+                                                                       match_iou) for p in (before, floor))
 
     if args.out.exists():
         shutil.rmtree(args.out)
@@ -157,7 +158,7 @@ def tune(args) -> dict:
     bundle["detector"]["operating_point"] = dict(zip(classes, chosen.thresholds, strict=True))
     bundle["detector"]["min_side"] = dict(zip(classes, chosen.min_sides, strict=True))
     tuned = {"dataset": str(args.dataset.resolve()), "split": args.split, "images": len(truths), "method": name,
-             "from": str(Path(export).resolve()), "pair_f1": seen[chosen], "pair_f1_at_bundle_point": f1_before,
+             "from": str(Path(export).resolve()), CRITERION: seen[chosen], f"{CRITERION}_at_bundle_point": f1_before,
              "bundle_point": {"operating_point": dict(zip(classes, before.thresholds, strict=True)),
                               "min_side": dict(zip(classes, before.min_sides, strict=True))},
              "min_box_px": min_box_px, "match_iou": match_iou, "points": len(seen)}
@@ -176,7 +177,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--split", help="with a data stage output: the split to tune on (e.g. val); default every image")
     p.add_argument("--out", type=Path, required=True, help="the tuned bundle's folder (a copy of the bundle)")
     p.add_argument("--method", choices=TUNED_METHODS, default=None,
-                   help="the method whose end-to-end pair_f1 chooses the point (default: the bundle's end-to-end method)")
+                   help=f"the method whose end-to-end {CRITERION} chooses the point (default: the bundle's end-to-end method)")
     p.add_argument("--grid", help="score thresholds tried for every class, comma-separated (default: the export "
                    "stage's grid)")
     p.add_argument("--min-side", action="append", default=[], metavar="CLASS=PX,...",
@@ -204,8 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     point = json.loads((args.out / "export.json").read_text())["detector"]
     print(f"operating point on {tuned['images']} images: scores {point['operating_point']}, minimum sides "
-          f"{point['min_side']}; {tuned['method']} pair_f1 {tuned['pair_f1']:.2f} "
-          f"(the bundle's point: {tuned['pair_f1_at_bundle_point']:.2f}) -> {args.out}")
+          f"{point['min_side']}; {tuned['method']} {CRITERION} {tuned[CRITERION]:.2f} "
+          f"(the bundle's point: {tuned[f'{CRITERION}_at_bundle_point']:.2f}) -> {args.out}")
     print(f"use it: deepword infer IMAGE... --export {args.out} --out PREDS", file=sys.stderr)
     return 0
 

@@ -8,7 +8,7 @@ from deepword.geometry import containment
 from deepword.operating_point.search import (
     OperatingPoint,
     SubsetRelation,
-    end_to_end_pair_f1,
+    end_to_end_score,
     keep_at,
     search_operating_point,
 )
@@ -65,7 +65,7 @@ def no_sides(thresholds) -> OperatingPoint:
 def test_chosen_thresholds_maximise_val_pair_f1():
     grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
     chosen, seen = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
-    every = {no_sides(t): end_to_end_pair_f1([TRUTH], [DETECTIONS], no_sides(t), tightest_vehicle, 0.0, 0.5)
+    every = {no_sides(t): end_to_end_score([TRUTH], [DETECTIONS], no_sides(t), tightest_vehicle, 0.0, 0.5)
              for t in itertools.product(grid, repeat=2)}
     assert seen == pytest.approx(every)
     assert every[chosen] == max(every.values()) == 100.0
@@ -140,6 +140,6 @@ def test_the_search_predicts_and_scores_each_distinct_subset_once_and_agrees_wit
     # one call of the relation model for the whole search, every image's distinct subsets in it once, each scored once
     assert len(batches) == 1 and len(batches[0]) == len(set(batches[0])) == len(scored) == len(set(scored))
     assert len(scored) < 2 * len(seen)
-    assert seen == pytest.approx({p: end_to_end_pair_f1(truths, detections, p, tightest_vehicle, 0.0, 0.5)
+    assert seen == pytest.approx({p: end_to_end_score(truths, detections, p, tightest_vehicle, 0.0, 0.5)
                                   for p in seen})
     assert seen[chosen] == max(seen.values()) == 100.0
