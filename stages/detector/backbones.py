@@ -1,5 +1,9 @@
 """Backbones producing a stride-4 feature map for the CenterNet heads (the ``detector/backbone`` group).
 
+A backbone is one ``nn.Module`` class named by ``_target_`` in its ``conf/detector/backbone/<name>.yaml``, which holds
+exactly the keyword arguments it takes (``build_backbone``); it keeps ``out_channels`` (the heads' input width) and
+``stride_multiple`` (what input sides must be divisible by). The same file sets the heads' ``detector.head_conv``.
+
 - ``resnet18``: CenterNet's plain ``res_18`` (msra_resnet): ResNet-18 basic blocks down to stride 32,
   then three 4x4 stride-2 transposed convolutions of 256/256/256 channels back up to stride 4.
   Written here (no torchvision), randomly initialised.
@@ -15,6 +19,12 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from stages.training.modules import TARGET, build_module
+
+# a backbone's name in a model.json written before ``_target_`` named its class (``build_backbone`` reads those too)
+LEGACY_BACKBONES = {"tiny": "stages.detector.backbones.TinyBackbone",
+                    "resnet18": "stages.detector.backbones.ResNet18Deconv"}
 
 
 def conv_bn_relu(c_in: int, c_out: int, stride: int = 1, kernel: int = 3) -> nn.Sequential:
@@ -111,11 +121,20 @@ class TinyBackbone(nn.Module):
         return p
 
 
+def backbone_spec(cfg: dict) -> dict:
+    """The backbone node (``_target_`` and the class's arguments) of ``detector.backbone`` or a model.json's copy of
+    it; one written before ``_target_`` (``name: tiny|resnet18``, with the heads' ``head_conv`` beside the backbone's
+    arguments) is translated."""
+    cfg = dict(cfg)
+    if TARGET in cfg or "name" not in cfg:
+        return cfg
+    name = cfg.pop("name")
+    if name not in LEGACY_BACKBONES:
+        raise ValueError(f"detector.backbone.name: unknown backbone {name!r} (have {', '.join(LEGACY_BACKBONES)})")
+    cfg.pop("head_conv", None)
+    return {TARGET: LEGACY_BACKBONES[name], **cfg}
+
+
 def build_backbone(cfg: dict) -> nn.Module:
-    """A backbone from its config (``detector.backbone``): ``{name: tiny|resnet18, ...}``."""
-    name = cfg["name"]
-    if name == "tiny":
-        return TinyBackbone(tuple(cfg["channels"]), int(cfg["out_channels"]), cfg.get("blocks"))
-    if name == "resnet18":
-        return ResNet18Deconv(tuple(cfg["deconv_channels"]))
-    raise ValueError(f"detector.backbone.name: unknown backbone {name!r} (have 'tiny', 'resnet18')")
+    """A backbone from its config node (``detector.backbone``, ``backbone_spec``)."""
+    return build_module(backbone_spec(cfg), "detector.backbone")

@@ -12,7 +12,7 @@ from torch import nn
 
 from deepword.detection.letterbox import MEAN, STD
 from deepword.word_format import CLASS_NAMES
-from stages.detector.backbones import build_backbone
+from stages.detector.backbones import backbone_spec, build_backbone
 from stages.detector.decode import decode_outputs
 from stages.detector.heads import CenterNetHeads
 
@@ -49,10 +49,9 @@ class CenterNetWithDecode(nn.Module):
 
 def model_config(detector_cfg: dict) -> dict:
     """The JSON-able description of a model built from the stage config ``detector``."""
-    backbone = dict(detector_cfg["backbone"])
     return {
-        "backbone": backbone,
-        "head_conv": int(backbone["head_conv"]),
+        "backbone": backbone_spec(detector_cfg["backbone"]),
+        "head_conv": int(detector_cfg["head_conv"]),
         "regression": str(detector_cfg.get("regression", "centernet")),
         "class_names": list(CLASS_NAMES),
         "input_width": int(detector_cfg["input_width"]),
@@ -72,7 +71,7 @@ def build_centernet(config: dict) -> CenterNet:
     for key in ("input_width", "input_height"):
         if int(config[key]) % multiple:
             raise ValueError(f"detector.{key}={config[key]} must be divisible by {multiple} "
-                             f"for backbone {config['backbone']['name']!r}")
+                             f"for backbone {type(backbone).__name__}")
     # a model.json written before the regression choice existed is CenterNet's
     return CenterNet(backbone, int(config["head_conv"]), len(config["class_names"]),
                      config.get("regression", "centernet"))

@@ -31,10 +31,13 @@ def _group_of(path: Path):
     name = None
     if trained.is_file():
         try:
-            name = json.loads(trained.read_text())["backbone"]["name"]
-        except (ValueError, KeyError, TypeError):
+            backbone = json.loads(trained.read_text())["backbone"]
+            # a model.json from before _target_ names the group option; a newer one the backbone's class
+            name = (f"detector/backbone={backbone['name']}" if "name" in backbone else
+                    f"detector/backbone (it was trained with {backbone['_target_']})")
+        except (ValueError, KeyError, TypeError, AttributeError):
             name = None
-    hint = f"detector/backbone={name}" if name else "detector/backbone"
+    hint = name or "detector/backbone"
 
     def group_of(key: str) -> str:
         if key.startswith("backbone."):

@@ -24,6 +24,7 @@ What is exported:
 
 from __future__ import annotations
 
+import logging
 import warnings
 from pathlib import Path
 
@@ -34,9 +35,11 @@ from torch import nn
 from deepword.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
 from deepword.relation_graph import node_tensor
 from stages.export.channels_first import ChannelsFirstGraph
+from stages.relation.backbones import IN_CHANNELS, FirstConv
 from stages.relation.model import RelationEnsemble, mean_outputs
 
 OPSET = 17
+log = logging.getLogger(__name__)
 
 
 class RelationGraph(nn.Module):
@@ -115,27 +118,29 @@ class FoldedBackbone(nn.Module):
       convolution was slower (16-18 ms vs 14.3 ms, 133 objects; the add stays outside the blocked
       convolution there).
 
-    Backbones: ``ConvFC`` and ``ResNet18``."""
+    Backbones: any that declares its first convolution (``stages.relation.backbones.FirstConv``: ``first_conv``,
+    ``first_norm``, ``after_first_conv``; ``supports``)."""
 
     def __init__(self, backbone: nn.Module, input_size: int):
         super().__init__()
-        # imported here: it loads torch, which importing this module must not
-        from stages.relation.model import ConvFC, ResNet18
-
-        if isinstance(backbone, ConvFC):
-            conv, bn, self.body, self.pool = backbone.features[0], backbone.features[1], backbone.features[2:], False
-        elif isinstance(backbone, ResNet18):
-            conv, bn, self.pool = backbone.stem[0], backbone.stem[1], True
-            self.body = nn.Sequential(*backbone.stem[2:], backbone.blocks)
-        else:
-            raise TypeError(f"FoldedBackbone: no folding for {type(backbone).__name__}")
-        self.fc = backbone.fc
+        if not self.supports(backbone):
+            raise TypeError(f"FoldedBackbone: {type(backbone).__name__} does not declare its first convolution "
+                            "(stages.relation.backbones.FirstConv)")
+        conv, bn = backbone.first_conv, backbone.first_norm
+        self.backbone = backbone   # after_first_conv: the rest of its forward
         self.stride, self.padding = conv.stride, conv.padding
         with torch.no_grad():
-            scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+            if bn is None:   # the convolution alone: its own bias, if any
+                scale = torch.ones(conv.out_channels, dtype=conv.weight.dtype)
+                shift = conv.bias if conv.bias is not None else torch.zeros(conv.out_channels)
+            else:
+                scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+                shift = bn.bias - bn.running_mean * scale
+                if conv.bias is not None:
+                    shift = shift + conv.bias * scale
             weight = conv.weight * scale[:, None, None, None]
             weight[:, :3] /= 255.0  # the RGB channels arrive as 0..255
-            self.register_buffer("bias", bn.bias - bn.running_mean * scale)
+            self.register_buffer("bias", shift.clone())
             responses = plane_responses(weight[:, 3:], input_size, self.stride, self.padding)
             kernel = corner_kernel(responses)
         self.on_grid = kernel is not None
@@ -148,10 +153,11 @@ class FoldedBackbone(nn.Module):
 
     @staticmethod
     def supports(backbone: nn.Module) -> bool:
-        # imported here: it loads torch, which importing this module must not
-        from stages.relation.model import ConvFC, ResNet18
-
-        return isinstance(backbone, ConvFC | ResNet18)
+        """Whether ``backbone`` declares a first convolution of the 7 node-tensor channels, 2D, ungrouped."""
+        conv = getattr(backbone, "first_conv", None)
+        return (isinstance(backbone, FirstConv) and isinstance(conv, nn.Conv2d) and conv.in_channels == IN_CHANNELS
+                and conv.groups == 1 and conv.padding_mode == "zeros" and isinstance(conv.padding, tuple)
+                and isinstance(backbone.first_norm, nn.BatchNorm2d | None))
 
     def first_layer(self, crops: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
         """The folded first convolution (before its ReLU): crops (M, 3, S, S) uint8, coords (M, 4) float."""
@@ -164,8 +170,7 @@ class FoldedBackbone(nn.Module):
 
     def forward(self, crops: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
         """crops (M, 3, S, S) uint8, coords (M, 4) -> (M, hidden)."""
-        y = self.body(self.first_layer(crops, coords.to(torch.float32)))
-        return self.fc(y.mean(dim=(2, 3)) if self.pool else torch.flatten(y, 1))
+        return self.backbone.after_first_conv(self.first_layer(crops, coords.to(torch.float32)))
 
 
 class ShippedRelation(nn.Module):
@@ -182,8 +187,13 @@ class ShippedRelation(nn.Module):
         super().__init__()
         self.net, self.real_only = net, real_only
         self.graph = ChannelsFirstGraph(net)
-        folded = FoldedBackbone.supports(net.backbone)
-        self.backbone = FoldedBackbone(net.backbone, net.cfg.input_size) if folded else None
+        self.folded = FoldedBackbone.supports(net.backbone)
+        self.backbone = FoldedBackbone(net.backbone, net.cfg.input_size) if self.folded else None
+        if not self.folded:
+            log.warning("export: the relation backbone %s does not declare its first convolution "
+                        "(stages.relation.backbones.FirstConv): exported without folding the input normalisation "
+                        "into it, and the coordinate planes built in full (export.relation.folded_first_conv = 0)",
+                        type(net.backbone).__name__)
 
     def embed(self, crops: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
         if self.backbone is None:
@@ -258,6 +268,13 @@ class ShippedEnsemble(nn.Module):
 
     def forward(self, crops, coords, adj, cand):
         return mean_outputs([m(crops, coords, adj, cand) for m in self.members])
+
+
+def folds_first_conv(net: nn.Module) -> bool:
+    """Whether the export folds the input normalisation into the first convolution of ``net``'s backbone (every
+    member's, for a ``RelationEnsemble``): ``FoldedBackbone.supports``."""
+    members = net.members if isinstance(net, RelationEnsemble) else [net]
+    return all(FoldedBackbone.supports(m.backbone) for m in members)
 
 
 def shipped_relation(net: nn.Module, real_only: bool) -> nn.Module:

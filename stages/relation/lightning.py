@@ -141,7 +141,7 @@ class RelationModule(L.LightningModule):
         if select not in SELECT_MODES:
             raise ValueError(f"relation.train.select must be one of {SELECT_MODES}, got {select!r}")
         self.save_hyperparameters()
-        self.model = RelationNet(ModelConfig(**model))
+        self.model = RelationNet(ModelConfig.of(model))
         self.val_counts = RelationCounts()
         self.val_loss = MeanMetric()  # the epoch's mean val loss, for select=loss
         # bf16 autocast and channels_last for the crop backbone only, which holds nearly all the FLOPs; the

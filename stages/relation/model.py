@@ -15,82 +15,16 @@ different sides are not a couple. No data-dependent control flow and no boolean 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-BACKBONES = ("conv_fc", "resnet18")
-IN_CHANNELS = 7
+from stages.relation.backbone_spec import CONV_FC, TARGET, legacy_backbone
+from stages.relation.backbones import build_backbone
+
 _MASKED_LOGIT = -1e9  # softmax logit of a non-neighbour: exp underflows to exactly 0
-
-
-# --- backbones ---------------------------------------------------------------------------------------
-
-class ConvFC(nn.Module):
-    """Conv+fc node encoder: ``stages`` stride-2 conv3x3-BN-ReLU blocks (widths base*expansion*2^k), then
-    a fully connected layer over the flattened map, which keeps where in the crop things are."""
-
-    def __init__(self, input_size: int, expansion: int, out_dim: int, base_channels: int = 4, stages: int = 3):
-        super().__init__()
-        layers, c_in, side = [], IN_CHANNELS, input_size
-        for k in range(stages):
-            c = base_channels * expansion * 2**k
-            layers += [nn.Conv2d(c_in, c, 3, stride=2, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU()]
-            c_in, side = c, (side + 1) // 2
-        self.features = nn.Sequential(*layers)
-        self.fc = nn.Linear(c_in * side * side, out_dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.fc(torch.flatten(self.features(x), 1))
-
-
-class BasicBlock(nn.Module):
-    """ResNet basic block: two conv3x3-BN, identity (or 1x1 projection) shortcut."""
-
-    def __init__(self, c_in: int, c_out: int, stride: int):
-        super().__init__()
-        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False)
-        self.bn1 = nn.BatchNorm2d(c_out)
-        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1, bias=False)
-        self.bn2 = nn.BatchNorm2d(c_out)
-        self.shortcut = nn.Sequential()
-        if stride != 1 or c_in != c_out:
-            self.shortcut = nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride=stride, bias=False), nn.BatchNorm2d(c_out))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        out = F.relu(self.bn1(self.conv1(x)))
-        return F.relu(self.bn2(self.conv2(out)) + self.shortcut(x))
-
-
-class ResNet18(nn.Module):
-    """ResNet-18 (He et al.): 7x7/2 stem + 3x3/2 max-pool, four stages of two basic blocks, global
-    average pool, fc. ``base_width`` 64 is the standard network; smaller widths are for tests."""
-
-    def __init__(self, out_dim: int, base_width: int = 64):
-        super().__init__()
-        w = base_width
-        self.stem = nn.Sequential(nn.Conv2d(IN_CHANNELS, w, 7, stride=2, padding=3, bias=False), nn.BatchNorm2d(w),
-                                  nn.ReLU(), nn.MaxPool2d(3, stride=2, padding=1))
-        blocks, c_in = [], w
-        for k, stride in enumerate((1, 2, 2, 2)):
-            c = w * 2**k
-            blocks += [BasicBlock(c_in, c, stride), BasicBlock(c, c, 1)]
-            c_in = c
-        self.blocks = nn.Sequential(*blocks)
-        self.fc = nn.Linear(c_in, out_dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.fc(self.blocks(self.stem(x)).mean(dim=(2, 3)))
-
-
-def build_backbone(name: str, input_size: int, expansion: int, out_dim: int, base_width: int = 64) -> nn.Module:
-    if name == "conv_fc":
-        return ConvFC(input_size, expansion, out_dim)
-    if name == "resnet18":
-        return ResNet18(out_dim, base_width)
-    raise ValueError(f"unknown relation backbone {name!r}; choose one of {BACKBONES}")
 
 
 # --- graph part ---------------------------------------------------------------------------------------
@@ -179,12 +113,15 @@ class GeometryGate(nn.Module):
         return torch.sigmoid(self.logits(geometry))
 
 
+def _default_backbone() -> dict:
+    return {TARGET: CONV_FC, "input_size": 56, "expansion": 4}
+
+
 @dataclass(frozen=True)
 class ModelConfig:
-    backbone: str = "conv_fc"
-    input_size: int = 56
-    expansion: int = 4
-    base_width: int = 64
+    """The relation network's configuration: its backbone node (``_target_`` and the class's keyword arguments:
+    ``stages.relation.backbones``) and the graph part's settings. JSON-able (``relation.json``, checkpoints)."""
+    backbone: dict = field(default_factory=_default_backbone)
     hidden: int = 128
     embed_dim: int = 64
     gat: bool = True
@@ -193,13 +130,35 @@ class ModelConfig:
     edge_geometry: bool = False  # addition to the paper: GAT sees the pair's relative box geometry
     geometry_gate: bool = False  # addition to the paper: a learned geometry gate on the ownership cosines
 
+    def __hash__(self) -> int:   # the backbone node is a dict
+        return hash(repr(self))
+
+    @property
+    def input_size(self) -> int:
+        """The crop side S the backbone takes."""
+        return int(self.backbone["input_size"])
+
     @classmethod
     def from_cfg(cls, rel) -> ModelConfig:
-        b, m = rel.backbone, rel.model
-        return cls(backbone=str(b.name), input_size=int(b.input_size), expansion=int(b.expansion),
-                   base_width=int(b.get("base_width", 64)), hidden=int(m.hidden), embed_dim=int(m.embed_dim),
-                   gat=bool(m.gat), gat_hidden=int(m.gat_hidden), gcn_layers=int(m.gcn_layers),
-                   edge_geometry=bool(m.edge_geometry), geometry_gate=bool(m.geometry_gate))
+        """From the ``relation`` config: the backbone node as it is, the graph part from ``relation.model``."""
+        from omegaconf import OmegaConf
+
+        m = rel.model
+        return cls(backbone=OmegaConf.to_container(rel.backbone, resolve=True), hidden=int(m.hidden),
+                   embed_dim=int(m.embed_dim), gat=bool(m.gat), gat_hidden=int(m.gat_hidden),
+                   gcn_layers=int(m.gcn_layers), edge_geometry=bool(m.edge_geometry),
+                   geometry_gate=bool(m.geometry_gate))
+
+    @classmethod
+    def of(cls, model: dict) -> ModelConfig:
+        """From a saved ``asdict(ModelConfig)`` (relation.json's ``model``, a checkpoint's hyper-parameters), including
+        one saved before the backbone node named its class (``backbone: conv_fc`` beside ``input_size``,
+        ``expansion``, ``base_width``: ``stages.relation.backbone_spec.legacy_backbone``)."""
+        model = dict(model)
+        if isinstance(model.get("backbone"), str):
+            old = {k: model.pop(k) for k in ("input_size", "expansion", "base_width") if k in model}
+            model["backbone"] = legacy_backbone(model["backbone"], old)
+        return cls(**model)
 
 
 class RelationNet(nn.Module):
@@ -210,7 +169,7 @@ class RelationNet(nn.Module):
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.cfg = cfg
-        self.backbone = build_backbone(cfg.backbone, cfg.input_size, cfg.expansion, cfg.hidden, cfg.base_width)
+        self.backbone = build_backbone(cfg.backbone, cfg.hidden)
         self.attention = EdgeAttention(cfg.hidden, cfg.gat_hidden, cfg.edge_geometry) if cfg.gat else None
         self.gcn = nn.ModuleList(nn.Linear(cfg.hidden, cfg.hidden) for _ in range(cfg.gcn_layers))
         self.owner_head = nn.Linear(cfg.hidden, cfg.embed_dim)
@@ -287,7 +246,7 @@ class RelationEnsemble(nn.Module):
         super().__init__()
         if not members:
             raise ValueError("RelationEnsemble needs at least one member network")
-        if len({m.cfg for m in members}) != 1:
+        if any(m.cfg != members[0].cfg for m in members):
             raise ValueError("RelationEnsemble: the member networks differ in configuration")
         self.members = nn.ModuleList(members)
 

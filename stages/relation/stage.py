@@ -259,8 +259,9 @@ def load_network(stage_dir: str | os.PathLike):
     stage_dir = Path(stage_dir)
     meta = json.loads((stage_dir / CONFIG_FILE).read_text())
     n_members = int(meta.get("ensemble", 1))
-    net = RelationNet(ModelConfig(**meta["model"]))
+    model_cfg = ModelConfig.of(meta["model"])   # also a relation.json from before relation/backbone named classes
+    net = RelationNet(model_cfg)
     if n_members > 1:
-        net = RelationEnsemble([RelationNet(ModelConfig(**meta["model"])) for _ in range(n_members)])
+        net = RelationEnsemble([RelationNet(model_cfg) for _ in range(n_members)])
     net.load_state_dict(torch.load(stage_dir / WEIGHTS_FILE, map_location="cpu", weights_only=True))
     return net.eval(), meta

@@ -62,10 +62,12 @@ def _group_of(path: Path):
     trained = Path(path).parent / "relation.json"
     hint = "relation/backbone"
     if trained.is_file():  # beside a relation stage's relation.pt: what it was built with
+        # imported here: it loads torch, which importing this module must not
+        from stages.relation.model import ModelConfig
+
         try:
-            model = json.loads(trained.read_text())["model"]
-            hint += (f" (it was trained with backbone {model['backbone']}, input_size {model['input_size']}, "
-                     f"expansion {model['expansion']})")
+            backbone = ModelConfig.of(json.loads(trained.read_text())["model"]).backbone
+            hint += " (it was trained with backbone " + ", ".join(f"{k} {v}" for k, v in backbone.items()) + ")"
         except (ValueError, KeyError, TypeError):
             pass
 

@@ -7,6 +7,11 @@ training seed, whose spread is not another configuration) equals the row's compo
 with the run's own profile (the profile resizes the network too). So a row can never drift from
 ``conf/table2_row`` or ``conf/ablation``: an ablated run is never the default row, whatever it ablates, nor
 is a run trained on other data (``relation.train.detection_noise``, ``relation.box_warp``, ...).
+
+The backbone is matched by its class, ``relation.backbone._target_``, and the arguments its config node holds. A run
+logged before the node named its class has ``relation.backbone.name`` instead (and the arguments every backbone then
+carried, used or not): its class is read from the name (``stages.relation.backbone_spec.backbone_target``), and the
+fields the row's backbone does not take are not compared, as for any parameter the row does not define.
 """
 
 from __future__ import annotations
@@ -17,9 +22,11 @@ from pathlib import Path
 
 from pipeline.runs import RunRecord
 from pipeline.tracker import flatten_params
+from stages.relation.backbone_spec import TARGET, backbone_target
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 DEFINING_PREFIX = "relation."
+BACKBONE_TARGET = f"relation.backbone.{TARGET}"
 NOT_DEFINING = frozenset(f"relation.train.{k}" for k in ("epochs", "patience", "threads", "seed",
                                                           "limit_train_images", "limit_val_images"))
 
@@ -70,4 +77,7 @@ class RowMatcher:
         """Whether ``run`` is ``row``: its defining parameters equal the row's. A parameter the run does not
         have (a setting added after it ran) is not held against it."""
         profile = run.param("profile_name")
-        return all(run.params.get(k, v) == v for k, v in self.definition(row, profile).items())
+        params = run.params
+        if BACKBONE_TARGET not in params and (target := backbone_target(params)) is not None:
+            params = {**params, BACKBONE_TARGET: target}   # logged before the backbone node named its class
+        return all(params.get(k, v) == v for k, v in self.definition(row, profile).items())

@@ -196,3 +196,30 @@ def test_bev_table_takes_the_newest_run_with_footprint_metrics():
     assert rows[("gt", "box bottom (no relation)")][0] == 0.8 and ("gt", "Logic model") not in rows
     assert rows[("detected", "DeepWORD")][3] == 90.0
     assert bev_table([])[1] == {"bev": None} and not bev_table([])[0].rows
+
+
+def _logged_before_target(params: dict[str, str]) -> dict[str, str]:
+    """A run's params as the engine logged them before relation/backbone named its class: ``relation.backbone.name``
+    and every backbone's common fields (input_size, expansion, base_width: the quick profile's 16 on every one)."""
+    params = dict(params)
+    target = params.pop("relation.backbone._target_")
+    params["relation.backbone.name"] = {"stages.relation.backbones.ConvFC": "conv_fc",
+                                        "stages.relation.backbones.ResNet18": "resnet18"}[target]
+    params.setdefault("relation.backbone.expansion", "1")
+    params["relation.backbone.base_width"] = "16"
+    return params
+
+
+def test_runs_logged_before_the_backbone_named_its_class_match_their_own_row_only():
+    from pipeline.runs import RunRecord
+    from stages.tables.rows import TABLE1, RowMatcher
+
+    matcher = RowMatcher()
+    conv_fc, resnet18 = TABLE1
+    for row, other in ((conv_fc, resnet18), (resnet18, conv_fc)):
+        params = _logged_before_target(flatten_params(compose_config(list(row.overrides))))
+        run = RunRecord("r", "old", 0, params, {}, {})
+        assert matcher.matches(row, run) and not matcher.matches(other, run), row.label
+    now = RunRecord("n", "new", 0, flatten_params(compose_config(list(resnet18.overrides))), {}, {})
+    assert now.params["relation.backbone._target_"] == "stages.relation.backbones.ResNet18"
+    assert matcher.matches(resnet18, now) and not matcher.matches(conv_fc, now)

@@ -4,12 +4,13 @@ import torch
 from stages.detector.heads import HEATMAP_EPS
 from stages.detector.model import CenterNetWithDecode, build_centernet, load_detector, save_detector
 
-TINY = {"name": "tiny", "channels": [8, 8, 16, 16], "out_channels": 16, "head_conv": 16}
-RESNET18 = {"name": "resnet18", "deconv_channels": [256, 256, 256], "head_conv": 64}
+TINY = {"_target_": "stages.detector.backbones.TinyBackbone", "channels": [8, 8, 16, 16], "out_channels": 16}
+RESNET18 = {"_target_": "stages.detector.backbones.ResNet18Deconv", "deconv_channels": [256, 256, 256]}
 
 
-def config(backbone: dict, width: int = 64, height: int = 32, regression: str = "centernet") -> dict:
-    return {"backbone": backbone, "head_conv": backbone["head_conv"], "class_names": ["vehicle", "wheel"],
+def config(backbone: dict, width: int = 64, height: int = 32, regression: str = "centernet",
+           head_conv: int = 16) -> dict:
+    return {"backbone": backbone, "head_conv": head_conv, "class_names": ["vehicle", "wheel"],
             "input_width": width, "input_height": height, "down_ratio": 4, "max_detections": 7,
             "score_threshold": 0.1, "regression": regression}
 
@@ -36,7 +37,7 @@ def test_default_tiny_config_reaches_stride_32():
 
     from omegaconf import OmegaConf
 
-    tiny = OmegaConf.to_container(OmegaConf.load(Path(__file__).resolve().parents[3] / "conf/detector/backbone/tiny.yaml"))
+    tiny = OmegaConf.to_container(OmegaConf.load(Path(__file__).resolve().parents[3] / "conf/detector/backbone/tiny.yaml"))["backbone"]
     net = build_centernet(config(tiny, width=96, height=64)).eval()
     assert net.backbone.stride_multiple == 32
     with torch.no_grad():
@@ -50,6 +51,23 @@ def test_input_size_must_fit_the_strides():
         build_centernet(config(RESNET18, width=80))
     with pytest.raises(ValueError, match="unknown backbone"):
         build_centernet(config({"name": "vgg", "head_conv": 8}))
+    with pytest.raises(ValueError, match="cannot import"):
+        build_centernet(config({"_target_": "stages.detector.backbones.VGG"}))
+    with pytest.raises(TypeError, match="not a torch nn.Module"):
+        build_centernet(config({"_target_": "stages.detector.backbones.build_backbone"}))
+    with pytest.raises(TypeError, match="does not take"):
+        build_centernet(config(dict(TINY, expansion=4)))
+
+
+def test_a_model_json_from_before_target_loads(tmp_path):
+    """model.json named its backbone ``name: tiny`` with the heads' ``head_conv`` among the backbone's fields."""
+    net = build_centernet(config(TINY)).eval()
+    old = config({"name": "tiny", "channels": [8, 8, 16, 16], "out_channels": 16, "head_conv": 16})
+    save_detector(tmp_path, net, old)
+    loaded, _ = load_detector(tmp_path)
+    x = torch.randn(1, 3, 32, 64)
+    with torch.no_grad():
+        assert all(torch.equal(a, b) for a, b in zip(net(x), loaded(x), strict=True))
 
 
 def test_save_load_round_trip_and_decoding_wrapper(tmp_path):

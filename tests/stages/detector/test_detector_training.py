@@ -22,11 +22,11 @@ CONF = Path(__file__).resolve().parents[3] / "conf"
 def detector_cfg(**overrides) -> dict:
     """The real detector config files, shrunk for the toy dataset (128 x 96 images)."""
     cfg = OmegaConf.load(CONF / "detector" / "default.yaml")
-    cfg.backbone = OmegaConf.load(CONF / "detector" / "backbone" / "tiny.yaml")
+    cfg.merge_with(OmegaConf.load(CONF / "detector" / "backbone" / "tiny.yaml"))   # @package detector: backbone, head_conv
     cfg.merge_with({"input_width": 128, "input_height": 96, "batch_size": 4, "epochs": 1, "render_images": 2,
                     "ap_min_box_px": 7,  # ignores the toy's smallest (6 px) wheels
-                    "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "blocks": [1, 1, 1], "out_channels": 16,
-                                                         "head_conv": 16}})
+                    "log_every_n_steps": 1, "backbone": {"channels": [8, 16, 16, 32], "blocks": [1, 1, 1], "out_channels": 16},
+                    "head_conv": 16})
     cfg.merge_with(overrides)
     return OmegaConf.to_container(cfg, resolve=True)
 

@@ -62,7 +62,7 @@ def save_relation(out: Path, seed: int = 0) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     net = RelationNet(ModelConfig(**RELATION_MODEL)).eval()
     torch.save(net.state_dict(), out / "relation.pt")
-    inputs = InputConfig(input_size=RELATION_MODEL["input_size"], max_objects=MAX_OBJECTS)
+    inputs = InputConfig(input_size=RELATION_MODEL["backbone"]["input_size"], max_objects=MAX_OBJECTS)
     (out / "relation.json").write_text(json.dumps({
         "model": RELATION_MODEL, "inputs": asdict(inputs), "decode": {"threshold": 0.5, "one_owner": True},
         "has_roles": True, "seed": seed, "metrics": {"relation.val.wheel_acc": 50.0}}))

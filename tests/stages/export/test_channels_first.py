@@ -10,6 +10,7 @@ import torch
 
 from deepword.inference.runtime import ort_session
 from stages.export.channels_first import ChannelsFirstGraph, pair_geometry_channels_first
+from stages.relation.backbone_spec import CONV_FC
 from stages.relation.model import ModelConfig, RelationNet, pair_geometry
 
 torch.set_num_threads(1)
@@ -19,7 +20,7 @@ HIDDEN = 16
 
 def _net(gat: bool = True, edge_geometry: bool = True, geometry_gate: bool = True) -> RelationNet:
     torch.manual_seed(0)
-    cfg = ModelConfig(backbone="conv_fc", input_size=8, expansion=1, hidden=HIDDEN, embed_dim=8, gat=gat,
+    cfg = ModelConfig(backbone={"_target_": CONV_FC, "input_size": 8, "expansion": 1}, hidden=HIDDEN, embed_dim=8, gat=gat,
                       gat_hidden=8, edge_geometry=edge_geometry, geometry_gate=geometry_gate)
     return RelationNet(cfg).eval()
 

@@ -27,7 +27,7 @@ def ensemble_bundle(exported, tmp_path_factory):
     bundle = tmp_path_factory.mktemp("ensemble_bundle")
     shutil.copytree(exported[0], bundle, dirs_exist_ok=True)
     net = RelationEnsemble([small_net(0), small_net(1)]).eval()
-    export_relation(net, bundle / RELATION_FILES["dynamic"], RELATION_MODEL["input_size"], MAX_OBJECTS, static=False)
+    export_relation(net, bundle / RELATION_FILES["dynamic"], RELATION_MODEL["backbone"]["input_size"], MAX_OBJECTS, static=False)
     meta = json.loads((bundle / "export.json").read_text())
     meta["relation"]["decode"].update(flip_average=True, threshold=0.1)
     (bundle / "export.json").write_text(json.dumps(meta))
@@ -39,7 +39,7 @@ def test_subsets_score_as_the_shipped_model_scores_them_whole(ensemble_bundle):
     net, bundle = ensemble_bundle
     shipped = OnnxRelation(bundle, "dynamic")
     assert shipped.flip_average
-    graphs = dict(zip("abc", random_graphs([9, 4, 13], RELATION_MODEL["input_size"], seed=3), strict=True))
+    graphs = dict(zip("abc", random_graphs([9, 4, 13], RELATION_MODEL["backbone"]["input_size"], seed=3), strict=True))
     embedded = EmbeddedBoxes(net, graphs, flip_average=True)
     rng = np.random.default_rng(0)
     images = ["a", "b", "c", "a", "c"]

@@ -12,7 +12,7 @@ from stages.export.onnx_export import FoldedBackbone, export_detector, export_re
 from stages.export.parity import ParityError, ParityReport, compare_detector, detector_parity, relation_parity
 from stages.relation import decode as torch_decode
 from stages.relation.model import ModelConfig, RelationNet
-from tests.stages.export.tiny_models import DETECTOR, RELATION_MODEL
+from tests.stages.export.tiny_models import CONV_FC_16, DETECTOR, RELATION_MODEL, RESNET18_16
 
 torch.set_num_threads(1)
 
@@ -37,7 +37,7 @@ def small_net(seed: int = 0) -> RelationNet:
     return trained_like(RelationNet(ModelConfig(**RELATION_MODEL)), seed)
 
 
-@pytest.mark.parametrize("backbone", ["conv_fc", "resnet18"])
+@pytest.mark.parametrize("backbone", [CONV_FC_16, RESNET18_16], ids=["conv_fc", "resnet18"])
 def test_folded_backbone_computes_the_backbone_of_the_node_tensor(backbone):
     cfg = ModelConfig(**{**RELATION_MODEL, "backbone": backbone})
     torch.manual_seed(1)
@@ -81,7 +81,7 @@ def random_graphs(counts, size: int, seed: int = 0) -> list[ImageGraph]:
 def relation_models(tmp_path_factory):
     out = tmp_path_factory.mktemp("relation_onnx")
     net = small_net()
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     static = export_relation(net, out / "static.onnx", size, 12, static=True)
     dynamic = export_relation(net, out / "dynamic.onnx", size, 12, static=False)
     return net, static, dynamic
@@ -89,7 +89,7 @@ def relation_models(tmp_path_factory):
 
 def test_static_variant_matches_torch_padded_to_max_objects(relation_models):
     net, static, _ = relation_models
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     report = relation_parity(net, ort_session(static, 1), random_graphs([3, 12, 7], size), size, 0.5, n=12)
     report.check("static", 1e-4, 99.9)
     assert report.decisions > 50 and report.max_abs_diff < 1e-5
@@ -98,7 +98,7 @@ def test_static_variant_matches_torch_padded_to_max_objects(relation_models):
 @pytest.mark.parametrize("counts", [[3, 2], [17, 9]])
 def test_dynamic_variant_matches_torch_at_other_object_counts(relation_models, counts):
     net, _, dynamic = relation_models
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     report = relation_parity(net, ort_session(dynamic, 1), random_graphs(counts, size, seed=len(counts) + counts[0]),
                              size, 0.5, n=None)
     report.check("dynamic", 1e-4, 99.9)
@@ -114,7 +114,7 @@ def test_static_variant_refuses_another_object_count(relation_models):
 
 def test_parity_catches_a_torch_model_that_diverges_after_export(relation_models):
     net, static, _ = relation_models
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     diverged = small_net()
     with torch.no_grad():  # one weight of the torch model changed after the ONNX file was written
         diverged.role_head.bias += 1.0
@@ -134,7 +134,7 @@ def test_parity_catches_a_perturbed_onnx_graph(relation_models, tmp_path):
     weights = numpy_helper.to_array(biggest)
     biggest.CopyFrom(numpy_helper.from_array(weights + 0.05 * np.sign(weights), biggest.name))
     onnx.save(model, str(tmp_path / "perturbed.onnx"))
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     report = relation_parity(net, ort_session(tmp_path / "perturbed.onnx", 1), random_graphs([5, 9], size), size,
                              0.5, n=None)
     with pytest.raises(ParityError):
@@ -209,7 +209,7 @@ def test_detector_parity_is_relative_for_pixel_sizes_and_absolute_for_heatmap_an
 def test_an_ensemble_exports_as_one_graph_averaging_its_members(tmp_path, static):
     from stages.relation.model import RelationEnsemble
 
-    size = RELATION_MODEL["input_size"]
+    size = RELATION_MODEL["backbone"]["input_size"]
     members = [small_net(0), small_net(1)]
     ensemble = RelationEnsemble(members).eval()
     path = export_relation(ensemble, tmp_path / "ensemble.onnx", size, 12, static=static)

@@ -18,10 +18,12 @@ from stages.export.onnx_export import (
     plane_grid,
     plane_responses,
 )
+from stages.relation.backbone_spec import CONV_FC, RESNET18
 from stages.relation.model import ModelConfig, RelationNet
 
 torch.set_num_threads(1)
-DEFAULT_NET = ModelConfig(backbone="conv_fc", input_size=56, expansion=4, hidden=128, embed_dim=64, gat=True,
+DEFAULT_NET = ModelConfig(backbone={"_target_": CONV_FC, "input_size": 56, "expansion": 4}, hidden=128, embed_dim=64,
+                          gat=True,
                           gat_hidden=64, edge_geometry=True, geometry_gate=True)
 
 
@@ -45,9 +47,11 @@ def test_corner_kernel_declines_geometries_with_more_border_values(size, kernel,
     assert corner_kernel(plane_responses(weight, size, stride, padding)) is None
 
 
-@pytest.mark.parametrize("backbone,on_grid", [("conv_fc", True), ("resnet18", False)])
+@pytest.mark.parametrize("backbone,on_grid", [({"_target_": CONV_FC, "input_size": 28, "expansion": 1}, True),
+                                               ({"_target_": RESNET18, "input_size": 28, "base_width": 8}, False)],
+                         ids=["conv_fc", "resnet18"])
 def test_folded_backbone_uses_the_grid_where_it_is_exact(backbone, on_grid):
-    cfg = ModelConfig(backbone=backbone, input_size=28, expansion=1, base_width=8, hidden=16)
+    cfg = ModelConfig(backbone=backbone, hidden=16)
     torch.manual_seed(3)
     net = RelationNet(cfg).eval()
     folded = FoldedBackbone(net.backbone, cfg.input_size)

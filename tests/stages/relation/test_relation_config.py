@@ -74,7 +74,7 @@ def test_ablation_changes_only_its_field(name):
 
 def test_default_relation_config_and_stage_declaration():
     cfg = _compose()
-    assert cfg.relation.backbone.name == "conv_fc" and cfg.relation.backbone.input_size == 56
+    assert cfg.relation.backbone._target_ == "stages.relation.backbones.ConvFC" and cfg.relation.backbone.input_size == 56
     assert cfg.relation.backbone.expansion == 4 and cfg.relation.decode.one_owner is True
     stage = cfg.pipeline.stages.relation
     assert stage.run == "stages.relation.stage:run" and list(stage.inputs) == ["data", "priors"]

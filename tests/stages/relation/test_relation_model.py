@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from deepword.relation_graph import InputConfig, node_tensor
+from stages.relation.backbone_spec import CONV_FC, RESNET18
 from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
 from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
 from tests.stages.relation import relation_data as rd
@@ -12,9 +13,13 @@ from tests.stages.relation import relation_data as rd
 torch.set_num_threads(1)
 
 
+def conv_fc(input_size: int, expansion: int = 1) -> dict:
+    return {"_target_": CONV_FC, "input_size": input_size, "expansion": expansion}
+
+
 def _net(**kw) -> RelationNet:
     torch.manual_seed(0)
-    cfg = dict(backbone="conv_fc", input_size=16, expansion=1, hidden=32, embed_dim=16, gat_hidden=16)
+    cfg = dict(backbone=conv_fc(16), hidden=32, embed_dim=16, gat_hidden=16)
     cfg.update(kw)
     return RelationNet(ModelConfig(**cfg)).eval()
 
@@ -29,10 +34,10 @@ def _inputs(max_objects: int, size: int = 16, n_images: int = 2):
     return x, torch.from_numpy(split.adj), torch.from_numpy(split.cand).float(), split
 
 
-@pytest.mark.parametrize("backbone,size,expansion", [("conv_fc", 28, 1), ("conv_fc", 56, 1), ("conv_fc", 56, 4),
-                                                     ("resnet18", 56, 1)])
-def test_output_shapes_per_backbone(backbone, size, expansion):
-    net = _net(backbone=backbone, input_size=size, expansion=expansion, base_width=8)
+@pytest.mark.parametrize("backbone,size", [(conv_fc(28), 28), (conv_fc(56), 56), (conv_fc(56, 4), 56),
+                                           ({"_target_": RESNET18, "input_size": 56, "base_width": 8}, 56)])
+def test_output_shapes_per_backbone(backbone, size):
+    net = _net(backbone=backbone)
     x, adj, cand, _ = _inputs(12, size=size)
     owner, couple, front = net(x, adj, cand)
     assert owner.shape == couple.shape == (2, 12, 12) and front.shape == (2, 12)
@@ -41,7 +46,7 @@ def test_output_shapes_per_backbone(backbone, size, expansion):
 
 
 def test_resnet18_at_full_width_is_resnet18_sized():
-    net = RelationNet(ModelConfig(backbone="resnet18", input_size=56))
+    net = RelationNet(ModelConfig(backbone={"_target_": RESNET18, "input_size": 56}))
     assert 11.0e6 < count_parameters(net.backbone) < 11.5e6  # torchvision's resnet18 has 11.7M with its 1000-way fc
 
 
@@ -222,7 +227,7 @@ def test_geometry_gate_is_an_opt_in_symmetric_gate_on_the_ownership_cosines():
 def test_ensemble_decides_on_the_mean_of_its_members_scores():
     from stages.relation.model import RelationEnsemble
 
-    cfg = ModelConfig(backbone="conv_fc", input_size=16, hidden=16, embed_dim=8, gat_hidden=8)
+    cfg = ModelConfig(backbone=conv_fc(16), hidden=16, embed_dim=8, gat_hidden=8)
     members = []
     for seed in (0, 1):
         torch.manual_seed(seed)
@@ -239,6 +244,24 @@ def test_ensemble_decides_on_the_mean_of_its_members_scores():
         torch.testing.assert_close(together[k], (alone[0][k] + alone[1][k]) / 2)
         assert not torch.allclose(together[k], alone[0][k])
     with pytest.raises(ValueError, match="differ in configuration"):
-        RelationEnsemble([members[0], RelationNet(ModelConfig(backbone="conv_fc", input_size=16, hidden=8))])
+        RelationEnsemble([members[0], RelationNet(ModelConfig(backbone=conv_fc(16), hidden=8))])
     with pytest.raises(ValueError, match="at least one"):
         RelationEnsemble([])
+
+
+def test_a_relation_json_from_before_the_backbone_named_its_class_loads(tmp_path):
+    """relation.json named its backbone ``backbone: resnet18`` beside input_size, expansion and base_width."""
+    import json
+
+    from stages.relation.stage import load_network
+
+    net = _net(backbone={"_target_": RESNET18, "input_size": 16, "base_width": 8})
+    torch.save(net.state_dict(), tmp_path / "relation.pt")
+    old = {"backbone": "resnet18", "input_size": 16, "expansion": 1, "base_width": 8, "hidden": 32, "embed_dim": 16,
+           "gat": True, "gat_hidden": 16, "gcn_layers": 2, "edge_geometry": False, "geometry_gate": False}
+    (tmp_path / "relation.json").write_text(json.dumps({"model": old}))
+    loaded, _ = load_network(tmp_path)
+    assert loaded.cfg == net.cfg
+    x, adj, cand, _ = _inputs(12)
+    with torch.no_grad():
+        assert all(torch.equal(a, b) for a, b in zip(net(x, adj, cand), loaded(x, adj, cand), strict=True))

@@ -21,11 +21,13 @@ from stages.relation.lightning import (
     score_split,
 )
 from stages.relation.losses import owner_ranking, relation_loss
+from stages.relation.backbone_spec import CONV_FC
 from stages.relation.model import ModelConfig
 from tests.stages.relation import relation_data as rd
 
 torch.set_num_threads(1)
-TINY = ModelConfig(backbone="conv_fc", input_size=28, expansion=1, hidden=64, embed_dim=32, gat_hidden=32)
+TINY = ModelConfig(backbone={"_target_": CONV_FC, "input_size": 28, "expansion": 1}, hidden=64, embed_dim=32,
+                   gat_hidden=32)
 LOSS = {"pos_weight": 1.0, "neg_weight": 1.0, "role_weight": 0.1}
 DECODE = {"threshold": 0.5, "one_owner": True}
 
