@@ -12,6 +12,7 @@ import torch
 from omegaconf import OmegaConf
 
 from deepword.relation_graph import InputConfig
+from stages.relation.backbone_spec import CONV_FC
 from stages.relation.decode import allowed_owners
 from stages.relation.lightning import (
     GraphDataset,
@@ -21,7 +22,6 @@ from stages.relation.lightning import (
     score_split,
 )
 from stages.relation.losses import owner_ranking, relation_loss
-from stages.relation.backbone_spec import CONV_FC
 from stages.relation.model import ModelConfig
 from tests.stages.relation import relation_data as rd
 
