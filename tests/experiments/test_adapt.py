@@ -23,8 +23,6 @@ from tests.sqlite_store import fresh_store
 
 SAMPLES = {"n25_draw0": (25, 0), "n25_draw1": (25, 1), "n50_draw0": (50, 0), "n50_draw1": (50, 1),
            "n100_draw0": (100, 0), "n200_draw0": (200, 0), "n400_draw0": (400, 0)}
-HAS_INIT_RUN = (CONF / "init" / "run.yaml").is_file()
-needs_init = pytest.mark.skipif(not HAS_INIT_RUN, reason="the init group (init=run) is not in this tree")
 
 
 def _hydra(overrides: list[str]):
@@ -90,10 +88,9 @@ def test_scratch_and_mixed_jobs_are_what_the_docs_say(sample):
         {k: v for k, v in default["relation"].items() if k != "train"}
     assert mixed["relation"]["train"]["epochs"] == default["relation"]["train"]["epochs"]
     # finetune and scratch at one N and draw share the dataset (one data and priors entry in the cache)
-    assert scratch["data"] == _job("finetune" if HAS_INIT_RUN else "scratch", sample)["data"]
+    assert scratch["data"] == _job("finetune", sample)["data"]
 
 
-@needs_init
 @pytest.mark.parametrize("sample", ["n25_draw1", "n400_draw0"])
 def test_finetune_jobs_start_from_the_base_run_with_a_budget_in_steps(sample):
     n, _ = SAMPLES[sample]
@@ -109,7 +106,6 @@ def test_finetune_jobs_start_from_the_base_run_with_a_budget_in_steps(sample):
     assert 550 <= det_steps <= 650 and 300 <= rel_steps <= 340
 
 
-@needs_init
 def test_finetune_without_a_base_run_does_not_compose():
     from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryValue
 
