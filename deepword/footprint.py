@@ -9,19 +9,22 @@ calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Pe
   line gives the axis, the wheelbase the length (``FootprintPrior.length_for``), the width prior puts the
   centre behind the side, away from the camera;
 - ``axle``: two wheels of one axle: the axis is perpendicular, the centre half a wheelbase further away;
-- ``wheel``: one wheel: the centre where the wheel's offset circle meets the ``box_bottom`` guess best,
-  the axis that puts the body beyond the wheel;
-- ``box``: no wheel: the ``box_bottom`` estimate.
+- ``wheel``: one wheel: the centre half a wheelbase ahead of a ``rear`` wheel or behind a ``front`` one and
+  (width/2 - track inset) to its side; the heading (over 360 deg) and the side are the ones whose vehicle image
+  (``Shape``, ``silhouette_boxes``) best fits the vehicle box (``fit_wheel``);
+- ``box``: no wheel: the vehicle whose image best fits the vehicle box, searched over its ground position around
+  the ``box_bottom`` guess, its axis along the camera's viewing direction (``fit_free``: a vehicle whose wheels
+  are all hidden is most often seen end-on), of the two headings the one whose cabin fits best.
 
-``box_bottom`` (no relation at all) back-projects the bottom centre of the vehicle box and pushes it away
-from the camera by a fitted distance; its axis is the box's back-projected bottom edge, along the vehicle
-when that edge is longer than a car is wide.
+A weak estimate (``wheel``, ``box``) takes the axis of the nearest footprint of its frame resting on a side's two
+wheels within ``CONTEXT_RADIUS_M`` instead (``estimate_frame``, ``context_axes``): vehicles parked in a row or
+driving in a lane are parallel.
 
 **Heading direction.** A relation may name each wheel's role (``front`` / ``rear``: DeepWORD's role head and the
 ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
 (a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
-vehicle's front and the estimate is ``directed``; otherwise (``box``, wheels without roles) only the axis is
-known and the heading's sign is arbitrary, so it is scored both over 360 deg and modulo 180 deg.
+vehicle's front and the estimate is ``directed``; otherwise (``box``: the cabin's fit picks the sign, a guess;
+wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg.
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
 scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
@@ -62,6 +65,15 @@ class FootprintPrior:
     contact_shift: float      # median distance the back-projected wheel point lies nearer the camera than the contact
     box_shift: float          # median distance from the back-projected vehicle box bottom centre on to the centre
     height: float = 1.5       # median vehicle height (footprints are boxes of this height)
+    # the silhouette model (``Shape``): chosen on the train split's vehicle boxes at their true poses
+    clearance: float = 0.25   # the lower body's bottom (m)
+    belt: float = 0.55        # the lower body's top (share of the height)
+    cabin_length: float = 0.65  # the cabin's length (share of the length)
+    cabin_x: float = -0.1     # the cabin's centre ahead of the body's (share of the length)
+
+    @property
+    def shape(self) -> Shape:
+        return Shape(self.clearance, self.belt, self.cabin_length, self.cabin_x, self.wheelbase / self.length)
 
     def length_for(self, wheelbase: float) -> float:
         return self.length_slope * wheelbase + self.length_offset
@@ -163,6 +175,159 @@ def box_bottom_estimate(cam: Camera, box: np.ndarray, prior: FootprintPrior) -> 
     return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, 0.0 if yaw is None else yaw)
 
 
+# --- fitting a vehicle's shape to its image box ------------------------------------------------------------
+
+# points along each of a cuboid's 12 edges (shares of the edge): corners, midpoints and quarter points, enough for the
+# bbox of a fisheye-curved edge
+_EDGE_STEPS = (0.0, 0.25, 0.5, 0.75, 1.0)
+# per box edge (x1, y1, x2, y2): the cost of a projected edge beyond the seen box, against 1 inside it (a vehicle's
+# image is at least its seen box; a hidden part may explain more: a nearer vehicle hides the bottom of the ones
+# behind it); chosen on the train split
+BEYOND_WEIGHT = (0.5, 0.25, 0.5, 0.25)
+
+
+def _cuboid(x: tuple, y: tuple, z: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Edge points of a cuboid whose bounds are linear in the vehicle's size: each bound (coefficient of the size,
+    offset in m). Returns (coefficients (P, 3), offsets (P, 3)): a point = coefficients * (length, width, height)
+    + offsets."""
+    corners = [(x[i], (y[0], y[1]) if j == 0 else (-y[0], -y[1]), z[k]) for k in (0, 1)
+               for i, j in ((1, 0), (1, 1), (0, 1), (0, 0))]
+    coef = np.array([[cx[0], cy[0], cz[0]] for cx, cy, cz in corners])
+    off = np.array([[cx[1], cy[1], cz[1]] for cx, cy, cz in corners])
+    edges = [(i, (i + 1) % 4) for i in range(4)] + [(4 + i, 4 + (i + 1) % 4) for i in range(4)] + [(i, i + 4) for i in range(4)]
+    t = np.array(_EDGE_STEPS)[:, None]
+    return (np.concatenate([coef[a] + t * (coef[b] - coef[a]) for a, b in edges]),
+            np.concatenate([off[a] + t * (off[b] - off[a]) for a, b in edges]))
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A vehicle's silhouette model (its defaults fit the train split's vehicle boxes at their true poses to
+    under a pixel, median, on the left, right and top edges): the lower body from ``clearance`` (m) up to
+    ``belt`` (share of the height), the full length and width; the cabin above it up to the height, ``cabin_length``
+    (share of the length) long, its centre ``cabin_x`` (share of the length) ahead of the body's centre, 8 cm
+    narrower on each side; the wheels' lowest points on the ground, ``wheelbase`` (share of the length) apart."""
+
+    clearance: float = 0.25
+    belt: float = 0.55
+    cabin_length: float = 0.65
+    cabin_x: float = -0.1
+    wheelbase: float = 0.6
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        lower = _cuboid(((-0.5, 0.0), (0.5, 0.0)), (0.5, 0.0), ((0.0, self.clearance), (self.belt, 0.0)))
+        cx0, cx1 = self.cabin_x - self.cabin_length / 2, self.cabin_x + self.cabin_length / 2
+        cabin = _cuboid(((cx0, 0.0), (cx1, 0.0)), (0.5, -0.08), ((self.belt, 0.0), (1.0, 0.0)))
+        half = self.wheelbase / 2
+        wheels = (np.array([[sx * half, sy * 0.5, 0.0] for sx in (1, -1) for sy in (1, -1)]),
+                  np.array([[0.0, -sy * 0.1, 0.0] for _ in (1, -1) for sy in (1, -1)]))
+        return (np.concatenate([lower[0], cabin[0], wheels[0]]), np.concatenate([lower[1], cabin[1], wheels[1]]))
+
+
+def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: Shape) -> np.ndarray:
+    """(N, 4) image boxes (box coordinates, clipped to the image) of vehicles of ``shape`` and ``size`` (length,
+    width, height; (3,) or (N, 3)) standing at ground centres ``xy`` (N, 2) heading ``yaw`` (N,): the bbox of the
+    projected edge points, a point beyond the field of view moved onto its border (where the image of a half-seen
+    vehicle ends)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+    size = np.broadcast_to(np.asarray(size, dtype=np.float64).reshape(-1, 3), (len(xy), 3))
+    coef, off = shape.points()
+    local = coef[None] * size[:, None, :] + off[None]                      # (N, P, 3)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    world = np.stack([xy[:, :1] + c * local[..., 0] - s * local[..., 1],
+                      xy[:, 1:] + s * local[..., 0] + c * local[..., 1], local[..., 2]], axis=2).reshape(-1, 3)
+    pc = cam.to_cam(world)
+    chi = np.hypot(pc[:, 0], pc[:, 1])
+    beyond = np.arctan2(chi, pc[:, 2]) > cam.theta_max
+    if beyond.any():
+        tm = cam.theta_max
+        scale = math.sin(tm) / np.maximum(chi[beyond], 1e-12)
+        pc[beyond] = np.stack([pc[beyond, 0] * scale, pc[beyond, 1] * scale,
+                               np.full(int(beyond.sum()), math.cos(tm))], axis=1)
+    uv = cam.project_cam(pc).reshape(len(xy), -1, 2) - BOX_TO_IMAGE
+    boxes = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+    return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
+
+
+def silhouette_cost(pred: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(N,) mismatch of projected boxes ``pred`` (N, 4) with the seen vehicle box ``seen`` (4,): squared edge
+    distances in shares of the seen box's larger side, an edge beyond the seen box weighted ``BEYOND_WEIGHT``."""
+    seen = np.asarray(seen[:4], dtype=np.float64)
+    d = (pred - seen) / max(float(seen[2] - seen[0]), float(seen[3] - seen[1]), 1.0)
+    d[:, :2] = -d[:, :2]                      # positive: the projection reaches beyond the seen box
+    w = np.where(d > 0, np.asarray(BEYOND_WEIGHT), 1.0)
+    return (w * d * d).sum(axis=1)
+
+
+def _size(prior: FootprintPrior) -> tuple[float, float, float]:
+    return prior.length, prior.width, prior.height
+
+
+def fit_free(cam: Camera, vbox: np.ndarray, prior: FootprintPrior, start: Box3D,
+             axes: list[float] | None = None) -> tuple[Box3D, float]:
+    """A no-wheel footprint: the prior-shaped vehicle whose image best fits the vehicle box (``silhouette_cost``),
+    searched coarse to fine over its ground position around ``start``, its axis one of ``axes`` (its neighbours'),
+    else along the camera's viewing direction (a vehicle whose wheels are all hidden is most often seen from its
+    front or back); of the two headings along an axis, the one whose cabin fits best."""
+    size = _size(prior)
+    bx, by = start.x, start.y
+    span, step_m = 2.4, 0.6
+    fixed = np.array([a + t for a in (axes or []) for t in (0.0, math.pi)])
+    turns = np.array([0.0, math.pi])
+    for _ in range(4):
+        off = np.arange(-span, span + 1e-9, step_m)
+        gx, gy = np.meshgrid(bx + off, by + off, indexing="ij")
+        xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        if len(fixed):
+            xy, yaw = np.repeat(xy, len(fixed), axis=0), np.tile(fixed, len(xy))
+        else:
+            view = np.arctan2(xy[:, 1] - cam.translation[1], xy[:, 0] - cam.translation[0])
+            xy, yaw = np.repeat(xy, len(turns), axis=0), (view[:, None] + turns[None]).ravel()
+        costs = silhouette_cost(silhouette_boxes(cam, xy, yaw, size, prior.shape), vbox)
+        i = int(np.argmin(costs))
+        bx, by, cost = float(xy[i, 0]), float(xy[i, 1]), float(costs[i])
+        turn = float(yaw[i]) - math.atan2(by - cam.translation[1], bx - cam.translation[0])
+        fixed, turns = (np.array([yaw[i]]), turns) if len(fixed) else (fixed, np.array([turn]))
+        span, step_m = step_m, step_m / 3
+    return Box3D(bx, by, prior.length, prior.width, math.remainder(float(yaw[i]), 2 * math.pi)), cost
+
+
+def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarray,
+              prior: FootprintPrior, axes: list[float] | None = None) -> tuple[Box3D, float]:
+    """A one-wheel footprint: the wheel sits (wheelbase/2) ahead of the centre when ``front``, behind it when
+    ``rear`` (both tried without a role), (width/2 - track inset) to one side; the vehicle whose image best fits the
+    vehicle box over both sides and every heading, or the two along one of ``axes`` (its neighbours'). The heading
+    points to the front."""
+    size = _size(prior)
+    half_wb, lateral = prior.wheelbase / 2, prior.width / 2 - prior.track_inset
+    along = {"front": (-1.0,), "rear": (1.0,)}.get(role, (-1.0, 1.0))   # centre = contact + a * u * half_wb ...
+    yaws = np.array([a + t for a in axes for t in (0.0, math.pi)]) if axes else np.arange(72) * math.pi / 36
+    for it in range(1 if axes else 3):
+        cand = np.array([(y, a, b) for y in yaws for a in along for b in (-1.0, 1.0)])
+        u = np.stack([np.cos(cand[:, 0]), np.sin(cand[:, 0])], axis=1)
+        n = np.stack([-u[:, 1], u[:, 0]], axis=1)
+        xy = contact + cand[:, 1:2] * u * half_wb + cand[:, 2:3] * n * lateral
+        costs = silhouette_cost(silhouette_boxes(cam, xy, cand[:, 0], size, prior.shape), vbox)
+        i = int(np.argmin(costs))
+        step = math.pi / 36 / 4 ** it
+        yaws = cand[i, 0] + np.linspace(-4 * step, 4 * step, 9)
+        along = (cand[i, 1],)
+    return (Box3D(float(xy[i, 0]), float(xy[i, 1]), prior.length, prior.width, math.remainder(float(cand[i, 0]), 2 * math.pi)),
+            float(costs[i]))
+
+
+CONTEXT_RADIUS_M = 8.0   # a weak estimate takes the axis of the nearest footprint resting on two wheels this close
+
+
+def context_axes(context: list[Box3D] | None, xy: np.ndarray, radius_m: float = CONTEXT_RADIUS_M) -> list[float]:
+    """The axis of the nearest of a frame's ``context`` footprints (those resting on two or more wheels) within
+    ``radius_m`` of ``xy``: neighbouring vehicles (a parking row, a lane) are most often parallel."""
+    near = [(math.hypot(b.x - xy[0], b.y - xy[1]), b.yaw) for b in context or []]
+    near = [n for n in near if 0.5 < n[0] <= radius_m]
+    return [min(near)[1]] if near else []
+
+
 def _side_box(cam: Camera, a: np.ndarray, b: np.ndarray, prior: FootprintPrior, far_side: bool = True) -> Box3D:
     """Footprint from two same-side contacts: the body lies beyond the side line, away from the camera."""
     axis = b - a
@@ -185,34 +350,6 @@ def _axle_box(cam: Camera, a: np.ndarray, b: np.ndarray, prior: FootprintPrior) 
         n = -n
     centre = mid + n * prior.wheelbase / 2
     return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, _axis_angle(n))
-
-
-def _wheel_box(cam: Camera, c: np.ndarray, vbox: np.ndarray, prior: FootprintPrior) -> Box3D | None:
-    """Footprint from one contact: the centre lies half a wheelbase along and (width/2 - track inset) across
-    from it, on a circle around the contact; the point of that circle nearest the ``box_bottom`` centre.
-    Of the two axes through that centre, the one whose side line puts the body beyond the wheel, away from
-    the camera (the wheel is seen, so it is on the near side)."""
-    guess = box_bottom_estimate(cam, vbox, prior)
-    if guess is None:
-        return None
-    half_wb, lateral = prior.wheelbase / 2, prior.width / 2 - prior.track_inset
-    d = np.array([guess.x, guess.y]) - c
-    if np.linalg.norm(d) < 1e-6:
-        d = _away(cam, c)[0]
-    d = d / np.linalg.norm(d)
-    centre = c + math.hypot(half_wb, lateral) * d
-    phi = math.atan2(lateral, half_wb)
-    away = _away(cam, c)[0]
-    best = None
-    for sign in (1.0, -1.0):
-        yaw = _axis_angle(d) - sign * phi
-        n = np.array([-math.sin(yaw), math.cos(yaw)])
-        if np.dot(n, d) < 0:
-            n = -n
-        score = float(np.dot(n, away))
-        if best is None or score > best[0]:
-            best = (score, yaw)
-    return Box3D(float(centre[0]), float(centre[1]), prior.length, prior.width, best[1])
 
 
 def _mean_box(boxes: list[Box3D]) -> Box3D:
@@ -243,7 +380,8 @@ def orient(box: Box3D, headings: list[float]) -> Box3D:
     return box
 
 
-def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relations: bool = True) -> list[Estimate]:
+def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relations: bool = True,
+                    context: list[Box3D] | None = None) -> list[Estimate]:
     """One footprint per vehicle box of ``rec`` from its predicted relations and couples
     (``use_relations=False``: the ``box_bottom`` baseline)."""
     contacts = {}
@@ -251,12 +389,14 @@ def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relatio
     if len(wheels) and use_relations:
         xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
         contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
-    return footprints_from_contacts(rec, cam, prior, contacts, use_relations)
+    return footprints_from_contacts(rec, cam, prior, contacts, use_relations, context)
 
 
 def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, contacts: dict[int, np.ndarray],
-                             use_relations: bool = True) -> list[Estimate]:
-    """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y))."""
+                             use_relations: bool = True, context: list[Box3D] | None = None,
+                             weak: bool = True) -> list[Estimate]:
+    """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y)); ``weak=False``: only
+    the vehicles resting on two or more wheels."""
     by_id = {int(b[6]): b for b in rec.boxes}
     owner = rec.owner_of() if use_relations else {}
     roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
@@ -293,14 +433,17 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                 directed = len(axle_roles) == 1 and None not in axle_roles
                 if axle_roles == {"front"}:  # the body extends back from the front axle: the front faces the camera
                     box = _flip(box)
+        elif not weak:
+            continue
         elif len(wheels) == 1:
-            box, evidence, used = _wheel_box(cam, contacts[wheels[0]], vbox, prior), "wheel", wheels
-            role = roles.get(wheels[0])
-            if box is not None and role is not None:
-                ahead = float(np.dot(contacts[wheels[0]] - (box.x, box.y), (math.cos(box.yaw), math.sin(box.yaw))))
-                box, directed = (_flip(box) if (ahead < 0) == (role == "front") else box), True
+            role, c = roles.get(wheels[0]), contacts[wheels[0]]
+            box, _ = fit_wheel(cam, c, role, vbox, prior, context_axes(context, c))
+            evidence, used, directed = "wheel", wheels, role is not None
         if box is None:
-            box, evidence, directed, used = box_bottom_estimate(cam, vbox, prior), "box", False, []
+            start = box_bottom_estimate(cam, vbox, prior)
+            box, evidence, directed, used = start, "box", False, []
+            if start is not None and use_relations:
+                box, _ = fit_free(cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
         if box is not None:
             box = replace(box, height=prior.height)
             conf = EVIDENCE_CONFIDENCE[evidence] * float(vbox[4])
@@ -312,6 +455,30 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
 
 
 # --- a frame's cameras ----------------------------------------------------------------------------------
+
+CONTEXT_EVIDENCE = ("sides", "side")   # the footprints whose axes the weak estimates of their frame may take
+
+
+def estimate_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, use_relations: bool = True,
+                   contacts: list[dict[int, np.ndarray]] | None = None) -> list[Estimate]:
+    """``estimate_record`` for each (record, camera) of one frame, the weak estimates (one wheel, none) with the
+    axes of the frame's footprints resting on a side's two wheels (``context_axes``) as their context. ``contacts``:
+    the wheels' ground contacts per view (``wheel_contacts`` when not given)."""
+    if contacts is None:
+        contacts = []
+        for rec, cam in views:
+            wheels = rec.boxes[rec.class_ids == WHEEL]
+            found = {}
+            if len(wheels) and use_relations:
+                xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
+                found = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+            contacts.append(found)
+    context = [e.box for (rec, cam), found in zip(views, contacts, strict=True)
+               for e in footprints_from_contacts(rec, cam, prior, found, use_relations, weak=False)
+               if e.evidence in CONTEXT_EVIDENCE] if use_relations else None
+    return [e for (rec, cam), found in zip(views, contacts, strict=True)
+            for e in footprints_from_contacts(rec, cam, prior, found, use_relations, context)]
+
 
 def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, list[Estimate]]]:
     """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate

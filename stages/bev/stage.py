@@ -30,7 +30,7 @@ import numpy as np
 
 from deepword.footprint import (
     FootprintPrior,
-    estimate_record,
+    estimate_frame,
     fit_prior,
     fuse_frame,
     group_confidence,
@@ -141,12 +141,13 @@ def scored(fused_frame: list) -> list[Scored]:
 def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict, prior: FootprintPrior,
                     use_relations: bool, fuse_radius: float) -> dict[int, list]:
     """Fused footprints per frame for one method on one box source."""
-    per_frame = defaultdict(list)
+    views = defaultdict(list)
     for rec in test:
         pred = preds.get(rec.image)
         if pred is not None:
-            per_frame[rec.frame_id] += estimate_record(pred, cameras[rec.image], prior, use_relations)
-    return {f: fuse_frame(per_frame.get(f, []), fuse_radius) for f in {r.frame_id for r in test}}
+            views[rec.frame_id].append((pred, cameras[rec.image]))
+    return {f: fuse_frame(estimate_frame(views.get(f, []), prior, use_relations), fuse_radius)
+            for f in {r.frame_id for r in test}}
 
 
 def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
