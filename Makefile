@@ -40,7 +40,7 @@ adapt: setup
 	$(PY) -m pipeline experiment=adapt adapt.base_run=$$base $(ARGS)
 
 compare: setup
-	$(PY) -m stages.tables --results docs/results.md $(ARGS)
+	$(PY) -m stages.tables --results docs/results.md --readme README.md $(ARGS)
 
 bench: setup
 	$(PY) -m benchmarks $(ARGS)

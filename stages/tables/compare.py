@@ -29,6 +29,7 @@ from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
 from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
+from stages.tables.headline import headline_table, write_headline
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 
 COMPARISON_TAG = "kind"
@@ -260,10 +261,11 @@ def bar_chart(tables: list[Table], path: Path) -> None:
 
 def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None, log: bool = True,
             datasets_experiment: str = DATASETS_EXPERIMENT, results: Path | None = None,
-            adapt_experiment: str = ADAPT_EXPERIMENT) -> dict:
+            adapt_experiment: str = ADAPT_EXPERIMENT, readme: Path | None = None) -> dict:
     """Build the tables from ``experiment`` in ``uri``, write them under ``out_dir``, log them, and (with
     ``results``) write them into that Markdown page; the datasets table from the runs whose experiment_name is
-    ``datasets_experiment``, the adapt table and curves from those whose experiment_name is ``adapt_experiment``."""
+    ``datasets_experiment``, the adapt table and curves from those whose experiment_name is ``adapt_experiment``;
+    with ``readme``, the headline table (stages/tables/headline.py) between that page's headline markers."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=uri)
@@ -278,7 +280,9 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     td, used_datasets = datasets_table(runs, datasets_experiment)
     tb, used_bev = bev_table(runs)
     ta, used_adapt = adapt_table(runs, adapt_experiment)
+    th, used_headline = headline_table(runs, adapt_experiment)
     out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "headline.md").write_text(th.markdown())
     tables = [t1, t2, t3]
     for i, table in enumerate(tables, start=1):
         (out_dir / f"table{i}.md").write_text(table.markdown())
@@ -303,10 +307,12 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     else:
         (out_dir / "adapt.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
-               | used_datasets | used_bev | used_adapt)
+               | used_datasets | used_bev | used_adapt | used_headline)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if results is not None:
-        write_results_page(results, [*tables, td, tb, ta], out_dir, scope)
+        write_results_page(results, [th, *tables, td, tb, ta], out_dir, scope)
+    if readme is not None:
+        write_headline(readme, th)
     if log:
         run = client.create_run(found.experiment_id, run_name="comparison",
                                 tags={COMPARISON_TAG: COMPARISON_KIND, "profile": profile or "all"})
@@ -365,6 +371,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/comparison"))
     parser.add_argument("--results", type=Path, default=None, metavar="PAGE",
                         help="also write the tables and charts into this Markdown page (make compare: docs/results.md)")
+    parser.add_argument("--readme", type=Path, default=None, metavar="PAGE",
+                        help="also write the headline table between this page's headline markers (make compare: README.md)")
     parser.add_argument("--no-log", action="store_true", help="do not log a comparison run to MLflow")
     parser.add_argument("--datasets", default=DATASETS_EXPERIMENT, metavar="NAME",
                         help="the datasets table from the runs with experiment_name=NAME (default: %(default)s)")
@@ -372,9 +380,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="the adapt table and curves from the runs with experiment_name=NAME (default: %(default)s)")
     args = parser.parse_args(argv)
     result = compare(args.tracking_uri, args.experiment, args.out, args.profile, log=not args.no_log,
-                     datasets_experiment=args.datasets, results=args.results, adapt_experiment=args.adapt)
+                     datasets_experiment=args.datasets, results=args.results, adapt_experiment=args.adapt,
+                     readme=args.readme)
     print((args.out / "comparison.md").read_text())
-    print(f"wrote {args.out}/table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, adapt.{{md,csv,png}}, comparison.md, "
+    print(f"wrote {args.out}/headline.md, table{{1,2,3}}.{{md,csv}}, datasets.{{md,csv,png}}, adapt.{{md,csv,png}}, comparison.md, "
           "comparison.png"
-          + (f", {args.results}" if args.results else "")
+          + (f", {args.results}" if args.results else "") + (f", {args.readme}" if args.readme else "")
           + (f"; MLflow run {result['run_id']}" if result["run_id"] else ""), file=sys.stderr)

@@ -1,0 +1,87 @@
+"""The README's headline: what ``make pipeline``'s default configuration gives, from the newest default run with
+end-to-end rows (``stages.tables.adapt_base.is_default_run``: no sweep, the generator's data, trained from scratch,
+the default settings of its profile), and, where the adapt sweep has run, what 50
+labelled images of a new camera buy (docs/adapt.md). ``make compare`` writes it between the README's markers."""
+
+from __future__ import annotations
+
+from deepword.scoring.report import metric_name
+from deepword.word_format import SUBSETS
+from pipeline.runs import RunRecord
+from pipeline.tables import Table
+from stages.tables.adapt import adapt_points, end_to_end_method
+from stages.tables.adapt_base import is_default_run
+
+HEADLINE_BEGIN = "<!-- headline by make compare: begin -->"
+HEADLINE_END = "<!-- headline by make compare: end -->"
+ADAPT_IMAGES = 50   # the adapt sweep's point the headline quotes: a small labelling effort
+
+
+def _rows_of(run: RunRecord) -> list[tuple[str, str, str]]:
+    """(label, boxes, method) of the headline's rows; ``boxes`` prefixed ``shift.`` for the held-out domain."""
+    e2e = end_to_end_method(run)
+    return [(f"end to end (detected boxes, `{e2e}`)", "detected", e2e),
+            ("end to end, held-out domain", "shift.detected", e2e),
+            ("ground-truth boxes, DeepWORD", "gt", "deepword"),
+            ("ground-truth boxes, `logic` (the paper's IoU rule)", "gt", "logic"),
+            ("ground-truth boxes, DeepWORD, held-out domain", "shift.gt", "deepword")]
+
+
+def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table, dict]:
+    """pair_f1 on easy / hard / mixed and hard image_acc of the newest default run (``runs``: newest first) with
+    end-to-end rows."""
+    run = next((r for r in runs if metric_name("detected", end_to_end_method(r), "mixed", "pair_f1") in r.metrics
+                and is_default_run(r, r.tags.get("profile", "quick"))), None)
+    header = ["synthetic test images", *(f"pair_f1 {s}" for s in SUBSETS), "image_acc hard"]
+    rows, notes = [], []
+    if run is None:
+        notes.append("No finished default run with end-to-end rows yet: run `make pipeline`, then `make compare`.")
+        return Table("Headline", header, rows, notes), {"headline": None}
+    m = run.metrics
+    for label, boxes, method in _rows_of(run):
+        cells = [m.get(metric_name(boxes, method, s, "pair_f1")) for s in SUBSETS]
+        cells.append(m.get(metric_name(boxes, method, "hard", "image_acc")))
+        if any(c is not None for c in cells):
+            rows.append([label, *cells])
+    sources = {"headline": run.run_id}
+    finetuned = [r for (recipe, n, _), r in adapt_points(runs, adapt_experiment).items()
+                 if recipe == "finetune" and n == ADAPT_IMAGES]
+    if finetuned:
+        method = end_to_end_method(finetuned[0])
+        draws = [[r.metrics.get(metric_name("shift.detected", method, s, "pair_f1")) for s in SUBSETS]
+                 for r in finetuned]
+        mean = [None if any(d[i] is None for d in draws) else sum(d[i] for d in draws) / len(draws)
+                for i in range(len(SUBSETS))]
+        rows.append([f"held-out domain after fine-tuning on {ADAPT_IMAGES} of its images "
+                     f"(mean of {len(finetuned)} draws)", *mean,
+                     _mean([r.metrics.get(metric_name("shift.detected", method, "hard", "image_acc"))
+                            for r in finetuned])])
+        sources["headline.adapt"] = ",".join(r.run_id for r in finetuned)
+    ap = [m.get(f"detector.test.ap50.{c}") for c in ("vehicle", "wheel")]
+    if None not in ap:
+        notes.append(f"Detector test AP@0.5: vehicles {ap[0]:.1f}, wheels {ap[1]:.1f} "
+                     f"(held out: {_fmt(m.get('detector.shift.ap50.vehicle'))}, "
+                     f"{_fmt(m.get('detector.shift.ap50.wheel'))}).")
+    notes.append(f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), profile {run.tags.get('profile', '?')}, "
+                 f"seed {run.tags.get('seed', '?')}; every image is a synthetic render.")
+    return Table("Headline", header, rows, notes), sources
+
+
+def _mean(values: list[float | None]) -> float | None:
+    return None if not values or any(v is None for v in values) else sum(values) / len(values)
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.1f}"
+
+
+def write_headline(page, table: Table) -> None:
+    """Replace the section of ``page`` between HEADLINE_BEGIN and HEADLINE_END with ``table`` (without its title:
+    the page gives it one). A page without the markers is an error: the README decides where its headline goes."""
+    text = page.read_text()
+    if HEADLINE_BEGIN not in text or HEADLINE_END not in text:
+        raise SystemExit(f"error: {page} has no headline markers ({HEADLINE_BEGIN} ... {HEADLINE_END})")
+    before, rest = text.split(HEADLINE_BEGIN, 1)
+    after = rest.split(HEADLINE_END, 1)[1]
+    body = table.markdown().split("\n", 2)[2]   # drop the "## Headline" line and the blank line after it
+    page.write_text(before + HEADLINE_BEGIN + "\n" + body.rstrip("\n") + "\n" + HEADLINE_END + after)

@@ -1,0 +1,80 @@
+"""make compare's README headline (stages/tables/headline.py): the newest default run's end-to-end and
+ground-truth rows, the adapt sweep's fine-tuned point at N=50, and the README's markers."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.runs import RunRecord
+from pipeline.tracker import flatten_params
+from stages.tables.headline import HEADLINE_BEGIN, HEADLINE_END, headline_table, write_headline
+from tests.experiments.pipeline_runs import compose_config
+
+SUBSETS = ("easy", "hard", "mixed")
+
+
+def _metrics(base: float) -> dict[str, float]:
+    m = {}
+    for i, s in enumerate(SUBSETS):
+        m[f"eval.detected.deepword_then_logic.{s}.pair_f1"] = base + i
+        m[f"eval.shift.detected.deepword_then_logic.{s}.pair_f1"] = base - 10 + i
+        m[f"eval.gt.deepword.{s}.pair_f1"] = 99.0
+        m[f"eval.gt.logic.{s}.pair_f1"] = 90.0
+    m["eval.detected.deepword_then_logic.hard.image_acc"] = 40.0
+    m |= {"detector.test.ap50.vehicle": 80.0, "detector.test.ap50.wheel": 88.5,   # and what a default run has
+          "detector.shift.ap50.vehicle": 70.0, "eval.shift.gt.deepword.mixed.pair_f1": 98.0}
+    return m
+
+
+QUICK = {"profile": "quick"}
+
+
+def _default_params() -> dict[str, str]:
+    return flatten_params(compose_config([]))
+
+
+def test_the_headline_is_the_newest_default_run_with_end_to_end_rows():
+    params = _default_params()
+    ablation = flatten_params(compose_config(["ablation=no_gat"]))
+    runs = [RunRecord("abl", "ablation", 3, ablation, _metrics(10.0), QUICK),       # newest, but not the default
+            RunRecord("gt_only", "table3", 2, params, {"eval.gt.deepword.mixed.pair_f1": 99.0}, QUICK),
+            RunRecord("new", "default", 1, params, _metrics(80.0), {"git_commit": "abcdef0"} | QUICK),
+            RunRecord("old", "default", 0, params, _metrics(50.0), QUICK)]
+    table, sources = headline_table(runs, "adapt")
+    assert sources == {"headline": "new"}
+    rows = {row[0]: row[1:] for row in table.rows}
+    e2e = rows["end to end (detected boxes, `deepword_then_logic`)"]
+    assert e2e == [80.0, 81.0, 82.0, 40.0]
+    assert rows["end to end, held-out domain"][:3] == [70.0, 71.0, 72.0]
+    assert rows["ground-truth boxes, `logic` (the paper's IoU rule)"][:3] == [90.0, 90.0, 90.0]
+    assert rows["ground-truth boxes, DeepWORD, held-out domain"] == [None, None, 98.0, None]   # n/a where not logged
+    assert any("vehicles 80.0, wheels 88.5" in n for n in table.notes)
+
+
+def test_the_headline_quotes_the_fine_tuned_point_at_50_images_as_the_mean_of_its_draws():
+    params = _default_params()
+    adapt = {"experiment_name": "adapt", "adapt.recipe": "finetune", "data.sources.pool.images": "50",
+             "export.end_to_end.method": "deepword_then_logic"}
+    draws = [RunRecord(f"ft{d}", f"ft{d}", 5, params | adapt | {"data.sources.pool.draw": str(d)},
+                       _metrics(70.0 + 10 * d) | {"eval.shift.detected.deepword_then_logic.hard.image_acc": 30.0 + d},
+                       QUICK) for d in (0, 1)]
+    runs = [*draws, RunRecord("base", "default", 1, params, _metrics(80.0), QUICK)]
+    table, sources = headline_table(runs, "adapt")
+    assert sources["headline"] == "base" and sources["headline.adapt"] == "ft0,ft1"
+    row = table.rows[-1]
+    assert row[0].startswith("held-out domain after fine-tuning on 50")
+    assert row[1:] == [65.0, 66.0, 67.0, 30.5]   # shift e2e of draws 60/70 (+i), image_acc 30/31
+
+
+def test_no_default_run_says_what_to_run_and_the_readme_markers_are_required(tmp_path):
+    table, sources = headline_table([], "adapt")
+    assert sources == {"headline": None} and not table.rows and "make pipeline" in table.notes[0]
+    page = tmp_path / "README.md"
+    page.write_text(f"# x\n\nbefore\n{HEADLINE_BEGIN}\nstale\n{HEADLINE_END}\nafter\n")
+    write_headline(page, table)
+    text = page.read_text()
+    assert "stale" not in text and "make pipeline" in text and text.startswith("# x\n\nbefore\n")
+    assert text.endswith(f"{HEADLINE_END}\nafter\n") and "## Headline" not in text
+    page.write_text("no markers")
+    with pytest.raises(SystemExit, match="no headline markers"):
+        write_headline(page, table)
