@@ -26,6 +26,10 @@ from stages.relation.backbone_spec import TARGET, backbone_target
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 DEFINING_PREFIX = "relation."
+# What the relation network trained on and from: a row is a network trained from scratch on the generator's data, so
+# a run on other data (data=word, the adapt sweep's data=adapt) or started from other weights (init=run) is not one
+# of its rows, whatever its relation settings.
+DEFINING_KEYS = ("data.name", "init.source")
 BACKBONE_TARGET = f"relation.backbone.{TARGET}"
 NOT_DEFINING = frozenset(f"relation.train.{k}" for k in ("epochs", "patience", "threads", "seed",
                                                           "limit_train_images", "limit_val_images"))
@@ -60,7 +64,8 @@ def row_definition(row: Row, profile: str | None, conf_dir: Path = CONF) -> dict
             cfg = OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
     finally:
         GlobalHydra.instance().clear()
-    return {k: v for k, v in flatten_params(cfg).items() if k.startswith(DEFINING_PREFIX) and k not in NOT_DEFINING}
+    return {k: v for k, v in flatten_params(cfg).items()
+            if (k.startswith(DEFINING_PREFIX) and k not in NOT_DEFINING) or k in DEFINING_KEYS}
 
 
 class RowMatcher:

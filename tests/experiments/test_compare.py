@@ -223,3 +223,18 @@ def test_runs_logged_before_the_backbone_named_its_class_match_their_own_row_onl
     now = RunRecord("n", "new", 0, flatten_params(compose_config(list(resnet18.overrides))), {}, {})
     assert now.params["relation.backbone._target_"] == "stages.relation.backbones.ResNet18"
     assert matcher.matches(resnet18, now) and not matcher.matches(conv_fc, now)
+
+
+def test_a_run_on_other_data_or_from_other_weights_is_no_table_row():
+    """The adapt sweep's runs keep the default relation settings but train on other data (data=adapt) or start
+    from the default run's weights (init=run): neither is Table 3's row."""
+    from pipeline.runs import RunRecord
+    from stages.tables.rows import TABLE3_ROW, RowMatcher
+
+    matcher = RowMatcher()
+    default = flatten_params(compose_config([]))
+    assert matcher.matches(TABLE3_ROW, RunRecord("d", "default", 0, default, {}, {}))
+    for changed in ({"data.name": "adapt"}, {"data.name": "word"}, {"init.source": "run"}):
+        assert not matcher.matches(TABLE3_ROW, RunRecord("o", "other", 0, default | changed, {}, {})), changed
+    before_init = {k: v for k, v in default.items() if not k.startswith("init.")}   # logged before the group existed
+    assert matcher.matches(TABLE3_ROW, RunRecord("old", "old", 0, before_init, {}, {}))
