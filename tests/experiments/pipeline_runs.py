@@ -32,6 +32,16 @@ TINY = ["profile=smoke", "relation.train.limit_train_images=12",
         "export.latency.images=4", "export.parity.detector_images=2"]
 
 
+def hydra_config(overrides: list[str]):
+    """The composed ``hydra`` node (sweeper params, launcher, callbacks) for ``overrides``."""
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+            return compose("config", overrides=overrides, return_hydra_config=True).hydra
+    finally:
+        GlobalHydra.instance().clear()
+
+
 def compose_config(overrides: list[str]) -> dict:
     """The resolved root config (a plain dict, the caller's own copy) for ``overrides``, as the pipeline would see
     it; composed once per test process (half a second to a second each, asked for again by many tests)."""

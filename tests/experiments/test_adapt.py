@@ -8,8 +8,6 @@ import json
 import math
 
 import pytest
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
 
 from pipeline.mlflow_ops import MlflowOps
 from pipeline.runs import RunRecord
@@ -18,20 +16,13 @@ from stages.tables.adapt import BASE_LABEL, RECIPES, adapt_chart, adapt_table
 from stages.tables.adapt_base import main as base_main
 from stages.tables.adapt_base import newest_default_run
 from stages.tables.compare import compare
-from tests.experiments.pipeline_runs import CONF, compose_config
+from tests.experiments.pipeline_runs import CONF, compose_config, hydra_config
 from tests.sqlite_store import fresh_store
 
 SAMPLES = {"n25_draw0": (25, 0), "n25_draw1": (25, 1), "n50_draw0": (50, 0), "n50_draw1": (50, 1),
            "n100_draw0": (100, 0), "n200_draw0": (200, 0), "n400_draw0": (400, 0)}
 
 
-def _hydra(overrides: list[str]):
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-            return compose("config", overrides=overrides, return_hydra_config=True).hydra
-    finally:
-        GlobalHydra.instance().clear()
 
 
 def _job(recipe: str, sample: str, *more: str) -> dict:
@@ -40,7 +31,7 @@ def _job(recipe: str, sample: str, *more: str) -> dict:
 
 
 def test_the_sweep_runs_three_recipes_on_seven_samples_two_jobs_at_a_time():
-    hydra = _hydra(["experiment=adapt"])
+    hydra = hydra_config(["experiment=adapt"])
     assert hydra.mode.name == "MULTIRUN" and hydra.launcher.n_jobs == 2
     params = dict(hydra.sweeper.params)
     assert params["adapt_recipe"].split(",") == ["finetune", "scratch", "mixed"]

@@ -6,23 +6,12 @@ from __future__ import annotations
 import json
 
 import pytest
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
 
 from pipeline.runs import RunRecord
 from pipeline.sweep import format_table, read_jobs, stage_totals, summarize
 from pipeline.tracker import flatten_params
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, RowMatcher
-from tests.experiments.pipeline_runs import CONF, compose_config, run_pipeline
-
-
-def _hydra_cfg(overrides: list[str]):
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-            return compose("config", overrides=overrides, return_hydra_config=True).hydra
-    finally:
-        GlobalHydra.instance().clear()
+from tests.experiments.pipeline_runs import CONF, compose_config, hydra_config, run_pipeline
 
 
 @pytest.mark.parametrize(("table", "axis", "values"), [
@@ -30,7 +19,7 @@ def _hydra_cfg(overrides: list[str]):
     ("table2", "table2_row", "conv_fc,neg0.1,fewer_neg,small_mask,input56,ex4"),
 ])
 def test_experiments_sweep_the_paper_rows_with_two_parallel_jobs(table, axis, values):
-    hydra = _hydra_cfg([f"experiment={table}"])
+    hydra = hydra_config([f"experiment={table}"])
     assert hydra.mode.name == "MULTIRUN"
     assert dict(hydra.sweeper.params) == {axis: values}
     assert hydra.launcher._target_.endswith("JoblibLauncher") and hydra.launcher.n_jobs == 2
@@ -38,7 +27,7 @@ def test_experiments_sweep_the_paper_rows_with_two_parallel_jobs(table, axis, va
 
 
 def test_datasets_experiment_runs_the_default_configuration_on_ten_root_seeds():
-    hydra = _hydra_cfg(["experiment=datasets"])
+    hydra = hydra_config(["experiment=datasets"])
     assert hydra.mode.name == "MULTIRUN" and dict(hydra.sweeper.params) == {"seed": "42,43,44,45,46,47,48,49,50,51"}
     assert hydra.launcher.n_jobs == 2
     ours, default = compose_config(["experiment=datasets"]), compose_config([])
@@ -49,7 +38,7 @@ def test_datasets_experiment_runs_the_default_configuration_on_ten_root_seeds():
 
 
 def test_table3_is_one_job_of_the_default_configuration():
-    hydra = _hydra_cfg(["experiment=table3"])
+    hydra = hydra_config(["experiment=table3"])
     assert hydra.mode.name == "MULTIRUN" and not hydra.sweeper.params
     assert compose_config(["experiment=table3"])["relation"] == compose_config([])["relation"]
 
