@@ -112,3 +112,13 @@ def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool 
     x += cv2.getTextSize("estimates by camera:", FONT, 0.33, 1)[0][0] + 8
     for name in camera_names:
         x = entry(x, name, lambda x, n=name: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), camera_colour(n), 1))
+
+
+def panel_grid(panels: list[np.ndarray], columns: int = 4) -> np.ndarray:
+    """Equal-sized RGB panels in rows of ``columns``, the last row padded with white: a frame's truth and six
+    method panels side by side made an image seven panels wide, too wide to read at any zoom."""
+    h, w, c = panels[0].shape
+    rows = [list(panels[i:i + columns]) for i in range(0, len(panels), columns)]
+    if len(rows) > 1:
+        rows[-1] += [np.full((h, w, c), 255, panels[0].dtype)] * (columns - len(rows[-1]))
+    return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)

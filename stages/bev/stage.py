@@ -39,7 +39,7 @@ from deepword.footprint import (
     wheel_contacts,
 )
 from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
-from deepword.top_view import top_view
+from deepword.top_view import panel_grid, top_view
 from deepword.word_format import WHEEL, Dataset, Record, open_dataset, read_records
 from pipeline.outputs import StageInputs
 from stages.bev.metrics import (
@@ -328,7 +328,7 @@ def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dic
                                    directed=[group_directed(g) for _, g in groups],
                                    seen_by=[len({e.camera for e in g}) for _, g in groups]))
         path = artifacts / f"top_view_{f:06d}.png"
-        cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(panels, axis=1), cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(path), cv2.cvtColor(panel_grid(panels), cv2.COLOR_RGB2BGR))
         paths.append(path)
     return paths
 

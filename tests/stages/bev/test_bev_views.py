@@ -67,3 +67,15 @@ def test_calibration_files_name_their_cameras_and_must_be_one_per_image(tmp_path
     with pytest.raises(InferError, match="3 files for 2 images"):
         add_footprints(args, {}, recs)
     assert isinstance(args, argparse.Namespace) and math.isfinite(PRIOR.width)
+
+
+def test_panels_are_laid_out_in_rows_of_four_padded_with_white():
+    import numpy as np
+
+    from deepword.top_view import panel_grid
+
+    panels = [np.full((10, 20, 3), i, np.uint8) for i in range(7)]
+    grid = panel_grid(panels)
+    assert grid.shape == (20, 80, 3)
+    assert (grid[10:, 60:] == 255).all() and (grid[10:, 40:60] == 6).all() and (grid[:10, :20] == 0).all()
+    assert panel_grid(panels[:3]).shape == (10, 60, 3)   # one row: no padding
