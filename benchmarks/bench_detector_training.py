@@ -146,8 +146,8 @@ def matmul_peaks(native_bf16: bool, size: int = 2048, rounds: int = 5) -> dict[s
         a @ b
         best = min(_timed(lambda a=a, b=b: a @ b) for _ in range(rounds))
         peaks[dtype_name] = 2 * size ** 3 / best
-    print("host peak (matrix product " + f"{size}^3, best of {rounds}): "
-          + ", ".join(f"{name} {rate / 1e9:.0f} GFLOP/s" for name, rate in peaks.items()))
+    rates = ", ".join(f"{name} {rate / 1e9:.0f} GFLOP/s" for name, rate in peaks.items())
+    print(f"host peak (matrix product {size}^3, best of {rounds}): {rates}")
     return peaks
 
 

@@ -39,23 +39,16 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
         return Table("Headline", header, rows, notes), {"headline": None}
     m = run.metrics
     for label, boxes, method in _rows_of(run):
-        cells = [m.get(metric_name(boxes, method, s, "pair_f1")) for s in SUBSETS]
-        cells.append(m.get(metric_name(boxes, method, "hard", "image_acc")))
+        cells = _cells(m, boxes, method)
         if any(c is not None for c in cells):
             rows.append([label, *cells])
     sources = {"headline": run.run_id}
     finetuned = [r for (recipe, n, _), r in adapt_points(runs, adapt_experiment).items()
                  if recipe == "finetune" and n == ADAPT_IMAGES]
     if finetuned:
-        method = end_to_end_method(finetuned[0])
-        draws = [[r.metrics.get(metric_name("shift.detected", method, s, "pair_f1")) for s in SUBSETS]
-                 for r in finetuned]
-        mean = [None if any(d[i] is None for d in draws) else sum(d[i] for d in draws) / len(draws)
-                for i in range(len(SUBSETS))]
+        draws = [_cells(r.metrics, "shift.detected", end_to_end_method(r)) for r in finetuned]
         rows.append([f"held-out domain after fine-tuning on {ADAPT_IMAGES} of its images "
-                     f"(mean of {len(finetuned)} draws)", *mean,
-                     _mean([r.metrics.get(metric_name("shift.detected", method, "hard", "image_acc"))
-                            for r in finetuned])])
+                     f"(mean of {len(finetuned)} draws)", *(_mean(list(column)) for column in zip(*draws, strict=True))])
         sources["headline.adapt"] = ",".join(r.run_id for r in finetuned)
     ap = [m.get(f"detector.test.ap50.{c}") for c in ("vehicle", "wheel")]
     if None not in ap:
@@ -65,6 +58,12 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
     notes.append(f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), profile {run.tags.get('profile', '?')}, "
                  f"seed {run.tags.get('seed', '?')}; every image is a synthetic render.")
     return Table("Headline", header, rows, notes), sources
+
+
+def _cells(metrics: dict[str, float], boxes: str, method: str) -> list[float | None]:
+    """A row's cells: pair_f1 on each subset, then hard image_acc (None where not logged)."""
+    return [*(metrics.get(metric_name(boxes, method, s, "pair_f1")) for s in SUBSETS),
+            metrics.get(metric_name(boxes, method, "hard", "image_acc"))]
 
 
 def _mean(values: list[float | None]) -> float | None:
