@@ -33,7 +33,8 @@ def budget(train: dict, cfg) -> dict:
     return {"epochs": int(given("epochs", scaled_epochs(tr.epochs))),
             "lr": float(given("lr", float(tr.lr) / 3)),
             "patience": int(given("patience", tr.patience)),
-            "ema_decay": float(given("ema_decay", tr.get("ema_decay", 0.0)))}
+            "ema_decay": float(given("ema_decay", tr.get("ema_decay", 0.0))),
+            "select": str(given("select", tr.get("select", "wheel_acc")))}
 
 
 def members_of(state: dict) -> list[dict]:
@@ -100,7 +101,8 @@ def fine_tuning(cfg, train: dict):
 
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain["relation"]["train"].update(epochs=int(train["epochs"]), lr=float(train["lr"]),
-                                      patience=int(train["patience"]), ema_decay=float(train["ema_decay"]))
+                                      patience=int(train["patience"]), ema_decay=float(train["ema_decay"]),
+                                      select=str(train["select"]))
     return OmegaConf.create(plain)
 
 

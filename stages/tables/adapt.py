@@ -29,8 +29,9 @@ DRAW_PARAM = "data.sources.pool.draw"
 BASE_PARAM = "adapt.base_run"
 END_TO_END_PARAM = "export.end_to_end.method"
 DEFAULT_END_TO_END = "deepword_then_logic"
-RECIPES = {"finetune": "finetune (default run's weights)", "scratch": "scratch (N images alone)",
-           "mixed": "mixed (generator + N images)"}
+RECIPES = {"finetune": "finetune (default run's weights)",
+           "finetune_mixed": "finetune_mixed (default run's weights, generator + N images)",
+           "scratch": "scratch (N images alone)", "mixed": "mixed (generator + N images)"}
 BASE_LABEL = "default run (N=0)"
 CLASSES = ("vehicle", "wheel")
 # (column stem, plot title); the held-out figures get mean / min / max columns, the in-domain one its mean
@@ -80,7 +81,7 @@ def base_run_id(run: RunRecord) -> str | None:
 def base_run(runs: list[RunRecord], points: dict) -> tuple[RunRecord | None, str | None]:
     """The default run the sweep's finetune jobs started from (the most named ``adapt.base_run``, finetune's
     first), found among ``runs``; and its id (None when no job names one)."""
-    named = Counter(base_run_id(r) for (recipe, _, _), r in points.items() if recipe == "finetune" and base_run_id(r))
+    named = Counter(base_run_id(r) for (recipe, _, _), r in points.items() if recipe.startswith("finetune") and base_run_id(r))
     named = named or Counter(base_run_id(r) for r in points.values() if base_run_id(r))
     if not named:
         return None, None
@@ -151,7 +152,7 @@ def adapt_chart(table: Table, path: Path) -> None:
     base = next((r for r in table.rows if r[0] == BASE_LABEL), None)
     recipes = list(dict.fromkeys(r[0] for r in table.rows if r[0] != BASE_LABEL))
     sizes = sorted({r[1] for r in table.rows if r[0] != BASE_LABEL})
-    colours = dict(zip(RECIPES.values(), ("tab:blue", "tab:orange", "tab:green"), strict=True))
+    colours = dict(zip(RECIPES.values(), ("tab:blue", "tab:purple", "tab:orange", "tab:green"), strict=True))
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.4))
     for ax, (stem, title) in zip(axes.flat, FIGURES.items(), strict=True):
         for recipe in recipes:

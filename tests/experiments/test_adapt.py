@@ -97,6 +97,25 @@ def test_finetune_jobs_start_from_the_base_run_with_a_budget_in_steps(sample):
     assert 550 <= det_steps <= 650 and 300 <= rel_steps <= 340
 
 
+@pytest.mark.parametrize("sample", ["n25_draw0", "n400_draw0"])
+def test_finetune_mixed_jobs_start_from_the_base_run_and_replay_the_generators_train_split(sample):
+    n, _ = SAMPLES[sample]
+    job, mixed = _job("finetune_mixed", sample), _job("mixed", sample)
+    assert job["adapt"]["recipe"] == "finetune_mixed" and job["init"]["source"] == "run"
+    assert job["init"]["run"] == "base0" and job["data"] == mixed["data"]   # mixed's dataset: one cache entry
+    budget = job["adapt"]["budget"]["finetune_mixed"]
+    assert job["init"]["detector_train"]["epochs"] == budget["detector_epochs"]
+    assert (job["init"]["relation_train"]["epochs"], job["init"]["relation_train"]["patience"]) == \
+        (budget["relation_epochs"], budget["relation_patience"])
+    assert job["init"]["relation_train"]["select"] == "loss"
+    assert job["detector"]["val_every_n_epochs"] == budget["detector_val_every"]
+    # about a tenth of the default run's steps at every N, as finetune: the generator's ~840 train images and
+    # the new ones repeated to a quarter of the split (~1,050-1,150 images)
+    train = 840 / 0.75
+    assert 550 <= budget["detector_epochs"] * (train // 8) <= 750
+    assert 300 <= budget["relation_epochs"] * math.ceil(2 * train / 16) <= 450
+
+
 def test_finetune_without_a_base_run_does_not_compose():
     from omegaconf.errors import InterpolationToMissingValueError, MissingMandatoryValue
 

@@ -224,3 +224,17 @@ def test_relation_members_start_from_as_many_members_or_one_network(tmp_path):
     assert len(member_states(one, 3, tmp_path)) == 3
     with pytest.raises(InitError, match="holds an ensemble of 2 networks, the config asks for 3: set relation.ensemble=2"):
         member_states(two, 3, tmp_path)
+
+
+def test_relation_fine_tuning_selects_its_checkpoint_by_the_val_loss():
+    """A fine-tuning starts at the plateau of val wheel_acc, where the first epoch would win every tie: its
+    budget selects on the val loss unless told otherwise, and the stage trains with what the budget says."""
+    from stages.relation.warm_start import budget, fine_tuning
+
+    cfg = compose_cfg("init=run", "init.run=abc")
+    assert cfg.relation.train.select == "wheel_acc"                       # from scratch: unchanged
+    filled = budget(dict(OmegaConf.to_container(cfg.init.relation_train)), cfg)
+    assert filled["select"] == "loss"
+    assert fine_tuning(cfg, filled).relation.train.select == "loss"
+    assert budget({"select": None}, cfg)["select"] == "wheel_acc"         # null: as relation.train.select
+    assert fine_tuning(cfg, budget({"select": "wheel_acc"}, cfg)).relation.train.select == "wheel_acc"
