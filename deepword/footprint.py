@@ -70,6 +70,9 @@ class FootprintPrior:
     belt: float = 0.55        # the lower body's top (share of the height)
     cabin_length: float = 0.65  # the cabin's length (share of the length)
     cabin_x: float = -0.1     # the cabin's centre ahead of the body's (share of the length)
+    # which way vehicles face where (``heading_prior_logit``): per cell of the vehicle frame and axis class, the share
+    # of the train split's vehicles facing the class's canonical way ("par,ix,iy" -> share; "par" -> the class's share)
+    heading: dict | None = None
 
     @property
     def shape(self) -> Shape:
@@ -79,11 +82,15 @@ class FootprintPrior:
         return self.length_slope * wheelbase + self.length_offset
 
     def to_json(self) -> dict:
-        return {k: round(float(v), 5) for k, v in asdict(self).items()}
+        out = {k: round(float(v), 5) for k, v in asdict(self).items() if k != "heading"}
+        if self.heading:
+            out["heading"] = {k: round(float(v), 4) for k, v in self.heading.items()}
+        return out
 
     @classmethod
     def from_json(cls, d: dict) -> FootprintPrior:
-        return cls(**{k: float(d[k]) for k in cls.__dataclass_fields__ if k in d})
+        fields = {k: float(d[k]) for k in cls.__dataclass_fields__ if k in d and k != "heading"}
+        return cls(**fields, heading={str(k): float(v) for k, v in d["heading"].items()} if d.get("heading") else None)
 
 
 @dataclass(frozen=True)
@@ -96,11 +103,16 @@ class Estimate:
     vehicle_box_id: int
     image: str
     confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
-    directed: bool = False   # the heading points to the front (wheel roles), else only the axis is known
+    role_vote: float = 0.0   # log-odds, from the wheels' roles, that ``box.yaw`` points to the front (0: no roles)
 
     @property
     def rank(self) -> int:
         return EVIDENCE.index(self.evidence)
+
+    @property
+    def directed(self) -> bool:
+        """The wheels' roles voted for the heading's direction (else only the axis came from the wheels)."""
+        return self.role_vote != 0.0
 
 
 # --- image points -> ground ---------------------------------------------------------------------------
@@ -365,12 +377,23 @@ def _flip(box: Box3D) -> Box3D:
     return replace(box, yaw=math.remainder(box.yaw + math.pi, 2 * math.pi))
 
 
-def _ordered(a: int, b: int, roles: dict[int, str]) -> tuple[int, int, bool]:
-    """Two same-side wheels rear first when their roles tell (``directed``), else as given."""
+# How far the relation network's roles are trusted, as log-odds that the direction they give is right: measured on
+# the quick profile's val split (ground-truth boxes) with the shipped role head, whose front probabilities stay
+# within 0.4-0.6: a couple's order (rear first) is right for 61 % of the couples, one wheel's role for 56 %.
+ROLE_COUPLE_LOGIT = 0.45
+ROLE_WHEEL_LOGIT = 0.25
+
+
+def _ordered(a: int, b: int, roles: dict[int, str], couple: bool) -> tuple[int, int, float]:
+    """Two same-side wheels rear first when their roles tell, with the vote (log-odds) that the order is right: two
+    different roles; else, for a couple of a record whose relations carry roles, its listed order (a relation network
+    with a role head lists couples rear first, by its front probabilities). 0: nothing tells (as given)."""
     ra, rb = roles.get(a), roles.get(b)
     if (ra, rb) == ("front", "rear"):
-        return b, a, True
-    return a, b, (ra, rb) == ("rear", "front")
+        return b, a, ROLE_COUPLE_LOGIT
+    if (ra, rb) == ("rear", "front"):
+        return a, b, ROLE_COUPLE_LOGIT
+    return a, b, (ROLE_COUPLE_LOGIT if couple and ra is not None and rb is not None else 0.0)
 
 
 def orient(box: Box3D, headings: list[float]) -> Box3D:
@@ -400,6 +423,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     by_id = {int(b[6]): b for b in rec.boxes}
     owner = rec.owner_of() if use_relations else {}
     roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
+    # a role head lists couples rear first: their order is a (weak) vote when the relations carry roles
+    couple_order = set(rec.wheel_pairs) if roles else set()
     couples = [(a, b) for a, b in rec.wheel_pairs if a in contacts and b in contacts] if use_relations else []
     side_threshold = (prior.wheelbase + prior.width) / 2
     out = []
@@ -407,15 +432,17 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
         vbox = by_id[vid]
         wheels = [w for w, v in owner.items() if v == vid and w in contacts]
         own_couples = [(a, b) for a, b in couples if owner.get(a) == vid and owner.get(b) == vid]
-        box, evidence, directed, used = None, "box", False, []
+        box, evidence, vote, used = None, "box", 0.0, []
         if len(own_couples) >= 2:
-            ordered = [_ordered(a, b, roles) for a, b in own_couples[:2]]
+            ordered = [_ordered(a, b, roles, (a, b) in couple_order) for a, b in own_couples[:2]]
             sides = [_side_box(cam, contacts[a], contacts[b], prior, far_side=False) for a, b, _ in ordered]
             centre = np.mean([contacts[w] for pair in own_couples[:2] for w in pair], axis=0)
             merged = _mean_box(sides)
             box, evidence = Box3D(float(centre[0]), float(centre[1]), merged.length, prior.width, merged.yaw), "sides"
-            headings = [s.yaw for s, (_, _, d) in zip(sides, ordered, strict=True) if d]
-            box, directed, used = orient(box, headings), bool(headings), [w for pair in own_couples[:2] for w in pair]
+            votes = [(s.yaw, v) for s, (_, _, v) in zip(sides, ordered, strict=True) if v]
+            box = orient(box, [h for h, _ in votes])
+            vote = sum(v * math.copysign(1.0, math.cos(h - box.yaw)) for h, v in votes)
+            used = [w for pair in own_couples[:2] for w in pair]
         elif len(wheels) >= 2:
             if own_couples:
                 a, b = own_couples[0]
@@ -425,23 +452,29 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             apart = float(np.linalg.norm(contacts[a] - contacts[b]))
             used = [a, b]
             if own_couples or apart >= side_threshold:
-                a, b, directed = _ordered(a, b, roles)
+                a, b, vote = _ordered(a, b, roles, (a, b) in couple_order)
                 box, evidence = _side_box(cam, contacts[a], contacts[b], prior), "side"
             else:
                 box, evidence = _axle_box(cam, contacts[a], contacts[b], prior), "axle"
                 axle_roles = {roles.get(a), roles.get(b)}
-                directed = len(axle_roles) == 1 and None not in axle_roles
+                vote = ROLE_WHEEL_LOGIT if len(axle_roles) == 1 and None not in axle_roles else 0.0
                 if axle_roles == {"front"}:  # the body extends back from the front axle: the front faces the camera
                     box = _flip(box)
         elif not weak:
             continue
         elif len(wheels) == 1:
+            # the position from the vehicle box alone (a role this unsure would put the centre a wheelbase off);
+            # the role, where there is one, votes for the direction
             role, c = roles.get(wheels[0]), contacts[wheels[0]]
-            box, _ = fit_wheel(cam, c, role, vbox, prior, context_axes(context, c))
-            evidence, used, directed = "wheel", wheels, role is not None
+            box, _ = fit_wheel(cam, c, None, vbox, prior, context_axes(context, c))
+            evidence, used, vote = "wheel", wheels, 0.0
+            if role is not None:
+                along = np.dot(np.array([box.x, box.y]) - c, (math.cos(box.yaw), math.sin(box.yaw)))
+                points_front = (along < 0) == (role == "front")   # the centre lies behind a front wheel
+                vote = ROLE_WHEEL_LOGIT if points_front else -ROLE_WHEEL_LOGIT
         if box is None:
             start = box_bottom_estimate(cam, vbox, prior)
-            box, evidence, directed, used = start, "box", False, []
+            box, evidence, vote, used = start, "box", 0.0, []
             if start is not None and use_relations:
                 box, _ = fit_free(cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
         if box is not None:
@@ -450,9 +483,65 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             if used:
                 conf *= float(np.mean([by_id[w][4] for w in used]))
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
-                                confidence=conf, directed=directed))
+                                confidence=conf, role_vote=vote))
     return out
 
+
+
+# --- which way a vehicle faces: the roles' votes and where it stands ------------------------------------------
+
+HEADING_CELL_M = 5.0      # the heading prior's cells (m) of the vehicle frame
+HEADING_RANGE_M = 20.0    # train vehicles within this range of the vehicle frame's origin make the heading prior
+HEADING_SMOOTHING = 4.0   # a cell's share is pulled towards its axis class's share by this many pseudo-vehicles
+
+
+def _heading_key(yaw: float, x: float, y: float) -> tuple[str, str, bool]:
+    """(cell key, axis class key, whether ``yaw`` faces the class's canonical way): the axis class is ``1`` along the
+    vehicle frame's x axis (canonical: +x) and ``0`` across it (canonical: +y)."""
+    axis = math.remainder(yaw, math.pi)                # (-pi/2, pi/2]
+    along = abs(math.cos(axis)) >= math.sqrt(0.5)
+    canonical = axis if along or math.sin(axis) > 0 else axis + math.pi
+    facing = abs(math.remainder(yaw - canonical, 2 * math.pi)) < math.pi / 2
+    par = str(int(along))
+    return f"{par},{math.floor(x / HEADING_CELL_M)},{math.floor(y / HEADING_CELL_M)}", par, facing
+
+
+def fit_heading(vehicles: list[Box3D]) -> dict[str, float]:
+    """The heading prior from true vehicles: per axis class its share facing the canonical way; per cell (within
+    HEADING_RANGE_M) its share, pulled towards its class's by HEADING_SMOOTHING pseudo-vehicles."""
+    cells, classes = {}, {}
+    for v in vehicles:
+        if math.hypot(v.x, v.y) > HEADING_RANGE_M:
+            continue
+        cell, par, facing = _heading_key(v.yaw, v.x, v.y)
+        for table, key in ((cells, cell), (classes, par)):
+            n, k = table.get(key, (0, 0))
+            table[key] = (n + 1, k + facing)
+    shares = {par: (k + 1) / (n + 2) for par, (n, k) in classes.items()}
+    out = dict(shares)
+    for cell, (n, k) in cells.items():
+        out[cell] = (k + HEADING_SMOOTHING * shares[cell.split(",")[0]]) / (n + HEADING_SMOOTHING)
+    return out
+
+
+def heading_prior_logit(prior: FootprintPrior | None, box: Box3D) -> float:
+    """Log-odds, from where ``box`` stands and its axis, that its heading points to the front: vehicles in the lanes
+    beside the ego mostly drive its way, parked rows mostly share theirs (``FootprintPrior.heading``, fitted on the
+    train split's 3D truth); 0 without a heading prior."""
+    if prior is None or not prior.heading:
+        return 0.0
+    cell, par, facing = _heading_key(box.yaw, box.x, box.y)
+    share = prior.heading.get(cell, prior.heading.get(par, 0.5))
+    share = min(max(share, 1e-3), 1 - 1e-3)
+    logit = math.log(share / (1 - share))
+    return logit if facing else -logit
+
+
+def heading_vote(box: Box3D, group: list[Estimate], prior: FootprintPrior | None) -> float:
+    """Log-odds that ``box.yaw`` points to the front: the roles' votes of the estimates of one vehicle (every camera
+    that saw it), each turned to ``box``'s axis, plus where it stands (``heading_prior_logit``)."""
+    roles = sum(e.role_vote * math.copysign(1.0, math.cos(e.box.yaw - box.yaw)) for e in group if e.role_vote)
+    return roles + heading_prior_logit(prior, box)
 
 # --- a frame's cameras ----------------------------------------------------------------------------------
 
@@ -480,10 +569,13 @@ def estimate_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, us
             for e in footprints_from_contacts(rec, cam, prior, found, use_relations, context)]
 
 
-def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, list[Estimate]]]:
+def fuse_frame(estimates: list[Estimate], radius_m: float,
+               prior: FootprintPrior | None = None) -> list[tuple[Box3D, list[Estimate]]]:
     """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate
     (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
-    the mean of its estimates of the strongest evidence."""
+    the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
+    (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
+    leading estimate points."""
     def nearness(e: Estimate) -> float:
         return math.hypot(e.box.x, e.box.y)
 
@@ -498,10 +590,9 @@ def fuse_frame(estimates: list[Estimate], radius_m: float) -> list[tuple[Box3D, 
     fused = []
     for g in groups:
         best = [e.box for e in g if e.rank == g[0].rank]
-        box = _mean_box(best) if len(best) > 1 else best[0]
-        directed = [e for e in g if e.directed]
-        if directed:  # the heading of the strongest directed estimates (of any camera of the group)
-            box = orient(box, [e.box.yaw for e in directed if e.rank == directed[0].rank])
+        box = orient(_mean_box(best), [best[0].yaw]) if len(best) > 1 else best[0]
+        if heading_vote(box, g, prior) < 0:
+            box = _flip(box)
         fused.append((box, g))
     return fused
 
@@ -527,7 +618,7 @@ def fit_prior(samples) -> FootprintPrior:
     """Fit ``FootprintPrior`` from (record, camera, vehicles {box_id: Box3D}, wheels {box_id: (x, y)})
     tuples of train images with ground-truth boxes and relations."""
     widths, lengths, heights, bases, insets, shifts, box_shifts = [], [], [], [], [], [], []
-    seen_vehicles = set()
+    seen_vehicles, unique = set(), []
     for rec, cam, vehicles, wheels in samples:
         owner = rec.owner_of()
         by_id = {int(b): rec.boxes[i] for i, b in enumerate(rec.box_ids)}
@@ -536,6 +627,7 @@ def fit_prior(samples) -> FootprintPrior:
             if key in seen_vehicles:
                 continue
             seen_vehicles.add(key)
+            unique.append(v)
             widths.append(v.width)
             lengths.append(v.length)
             heights.append(v.height)
@@ -572,4 +664,4 @@ def fit_prior(samples) -> FootprintPrior:
                           track_inset=float(np.median(insets)) if insets else 0.0,
                           contact_shift=float(np.median(shifts)) if shifts else 0.0,
                           box_shift=float(np.median(box_shifts)) if box_shifts else 0.0,
-                          height=float(np.median(heights)))
+                          height=float(np.median(heights)), heading=fit_heading(unique))

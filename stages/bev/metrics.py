@@ -183,11 +183,16 @@ def pr_curve(tp: np.ndarray, confidence: np.ndarray, n_true: int) -> tuple[np.nd
 
 def tp_error(errors: np.ndarray, match_conf: np.ndarray, level_conf: np.ndarray) -> float:
     """nuScenes' calc_tp: the running mean of the matches' errors (confidence order) read at each recall level's
-    confidence, averaged over the recall levels above MIN_RECALL up to the highest one reached; NaN without matches."""
+    confidence, averaged over the recall levels above MIN_RECALL up to the highest one reached; NaN without matches.
+    Matches of equal confidence are one step of the curve: the running mean read at their confidence includes all of
+    them (interpolating between tied points would read one arbitrary match's share of it: on ground-truth boxes,
+    where every estimate of an evidence level has the same confidence, the first few matches' errors alone)."""
     if not len(errors):
         return float("nan")
     running = np.cumsum(errors) / np.arange(1, len(errors) + 1)
-    at_level = np.interp(level_conf[::-1], match_conf[::-1], running[::-1])[::-1]
+    last_of_tie = np.append(match_conf[1:] != match_conf[:-1], True)   # match_conf falls: the end of each tie
+    conf_steps, running = match_conf[last_of_tie], running[last_of_tie]
+    at_level = np.interp(level_conf[::-1], conf_steps[::-1], running[::-1])[::-1]
     nonzero = np.nonzero(level_conf)[0]
     first, last = round(100 * MIN_RECALL) + 1, (int(nonzero[-1]) if len(nonzero) else 0)
     if last < first:  # the highest recall reached is under MIN_RECALL: the mean over the matches

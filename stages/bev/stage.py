@@ -146,7 +146,7 @@ def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict,
         pred = preds.get(rec.image)
         if pred is not None:
             views[rec.frame_id].append((pred, cameras[rec.image]))
-    return {f: fuse_frame(estimate_frame(views.get(f, []), prior, use_relations), fuse_radius)
+    return {f: fuse_frame(estimate_frame(views.get(f, []), prior, use_relations), fuse_radius, prior if use_relations else None)
             for f in {r.frame_id for r in test}}
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from deepword.footprint import Estimate, footprints_from_contacts, fuse_frame, group_confidence
+from deepword.footprint import ROLE_WHEEL_LOGIT, Estimate, footprints_from_contacts, fuse_frame, group_confidence
 from deepword.format_3d import Box3D
 from stages.bev.metrics import (
     DIST_THRESHOLDS,
@@ -117,8 +117,9 @@ def test_confidence_follows_evidence_and_box_scores_and_fusion_keeps_the_directi
     assert (side.evidence, box.evidence) == ("side", "box")
     assert side.confidence == pytest.approx(0.9 * 0.8 * 0.6) and box.confidence == pytest.approx(0.3)
     # an undirected estimate of the same vehicle turned backwards, fused with a weaker directed one: the front wins
-    back = Estimate(Box3D(v.x, v.y, 4.5, 1.8, v.yaw + math.pi), "sides", "front", 0, "a.png", 0.95, False)
-    wheel = Estimate(Box3D(v.x + 0.2, v.y, 4.5, 1.8, v.yaw + 0.1), "wheel", "left", 0, "b.png", 0.5, True)
+    back = Estimate(Box3D(v.x, v.y, 4.5, 1.8, v.yaw + math.pi), "sides", "front", 0, "a.png", 0.95)
+    wheel = Estimate(Box3D(v.x + 0.2, v.y, 4.5, 1.8, v.yaw + 0.1), "wheel", "left", 0, "b.png", 0.5,
+                     role_vote=ROLE_WHEEL_LOGIT)
     (fused, group), = fuse_frame([wheel, back], 1.5)
     assert abs(math.remainder(fused.yaw - v.yaw, 2 * math.pi)) < 1e-9 and group_confidence(group) == 0.95
 

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from deepword.footprint import (
+    ROLE_COUPLE_LOGIT,
+    ROLE_WHEEL_LOGIT,
     Estimate,
     box_bottom_points,
     context_axes,
@@ -107,10 +109,10 @@ def test_estimate_frame_lends_a_side_footprints_axis_to_a_one_wheel_vehicle():
 def test_fusion_keeps_the_better_evidence():
     truth = Box3D(2.0, 5.0, 4.5, 1.8, 0.1)
     side = Estimate(box=truth, evidence="side", camera="left", vehicle_box_id=0, image="l.png", confidence=0.9,
-                    directed=True)
+                    role_vote=ROLE_COUPLE_LOGIT)
     off = Box3D(truth.x + 0.6, truth.y + 0.4, 4.5, 1.8, 0.5)
     wheel = Estimate(box=off, evidence="wheel", camera="front", vehicle_box_id=3, image="f.png", confidence=0.5,
-                     directed=True)
+                     role_vote=ROLE_WHEEL_LOGIT)
     bare = Estimate(box=Box3D(truth.x - 0.7, truth.y, 4.5, 1.8, 1.2), evidence="box", camera="rear",
                     vehicle_box_id=1, image="r.png", confidence=0.3)
     for order in ([wheel, side, bare], [bare, wheel, side]):
