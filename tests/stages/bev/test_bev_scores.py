@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from deepword.footprint import ROLE_WHEEL_LOGIT, Estimate, footprints_from_contacts, fuse_frame, group_confidence
+from deepword.footprint import (
+    ROLE_WHEEL_LOGIT,
+    Estimate,
+    footprints_from_contacts,
+    fuse_frame,
+    group_confidence,
+)
 from deepword.format_3d import Box3D
 from stages.bev.metrics import (
     DIST_THRESHOLDS,
