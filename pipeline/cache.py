@@ -9,6 +9,8 @@ Layout under the cache directory::
                                     across a crash so the next attempt at the key resumes from it
     <stage>/.trash-<key>-<pid>-<rnd> an entry being replaced
     <stage>/.locks/<key>.lock       fcntl lock: one computation per key across processes
+    .code_imports.json              the import lists of the source files the plans hashed, by content hash
+                                    (pipeline.codeversion): a memo, never part of a key
 
 An entry exists under its final name only after the engine has written its manifest and renamed the
 work directory into place, so a crash leaves at most a ``.partial-`` directory. Its name is stable so
@@ -46,6 +48,7 @@ MANIFEST = "manifest.json"
 PARTIAL = ".partial-"
 OUT = "out"
 LATEST = "latest.json"
+IMPORTS_MEMO = ".code_imports.json"
 VERIFY_MODES = ("fast", "full")
 SMALL_FILE_BYTES = 1 << 20
 SMALL_FILES_BUDGET = 8 << 20

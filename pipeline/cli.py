@@ -10,10 +10,8 @@ import traceback
 from pathlib import Path
 
 from pipeline.errors import PipelineError
-from pipeline.ranks import current_rank
 from pipeline.runmode import is_single_run
 from pipeline.runner import run_pipeline
-from pipeline.tracker import prestart_worker
 
 # ``../conf`` made absolute: a relative config_path in a package turns into a ``pkg://`` lookup that
 # fails outside the repo root (the console script runs from anywhere).
@@ -96,10 +94,6 @@ def main() -> None:
     argv = sys.argv[1:]
     if any(a in INFO_FLAGS for a in argv):
         return _hydra_app()()
-    # MLflow takes seconds to import: the tracking worker starts first and imports it while this
-    # process imports Hydra, composes, hashes and plans. Only rank 0 of a multi-process launch tracks.
-    if current_rank().is_zero:
-        prestart_worker()
     _compose_once_if_single_run(argv)
     _hydra_app()()
 

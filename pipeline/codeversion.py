@@ -8,15 +8,23 @@ imports are ignored. Imports built from strings at run time (``importlib.import_
 invisible to this analysis.
 
 Modules are located with ``importlib``'s path finders, which look at the file system only: finding a
-module never executes it. Parsed import lists are memoised per (path, size, mtime) for the process.
+module never executes it. A file's import list is memoised by its content hash for the process. Parsing is most
+of the cost of a plan (about 150 files for the DeepWORD stages), so the import lists are also kept on disk between
+runs (``persistent_imports``, which the engine holds while it plans): a file is parsed again only when its content
+is new. The content is read and hashed on every plan, once per file within it.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import importlib.machinery
 import importlib.util
+import json
+import os
+import secrets
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,8 +39,18 @@ class CodeVersion:
     files: dict[str, str]
 
 
-_IMPORTS_MEMO: dict[tuple[str, int, int], list[tuple[str, int, tuple[str, ...]]]] = {}
+Imports = list[tuple[str, int, tuple[str, ...]]]  # (module, level, imported names) of each import statement
+
+_IMPORTS_MEMO: dict[str, Imports] = {}  # content sha256 -> imports
 _SPEC_MEMO: dict[str, tuple[Path | None, bool]] = {}
+# While ``persistent_imports`` is active: each file's hash, read once in the block (path -> sha256), and the
+# on-disk memo (content sha256 -> imports) with the hashes this block used.
+_plan_hashes: dict[Path, str] | None = None
+_DISK_FORMAT = 1
+_disk: dict[str, Imports] | None = None
+_disk_used: set[str] = set()
+_disk_added = False
+DISK_MEMO_ENTRIES = 4096  # beyond this, a save keeps only the entries this run used
 
 
 def _locate(module: str) -> tuple[Path | None, bool]:
@@ -72,24 +90,89 @@ def _module_name(path: Path, root_pkg: str, root_dir: Path) -> str:
     return ".".join(parts)
 
 
-def _raw_imports(path: Path) -> list[tuple[str, int, tuple[str, ...]]]:
-    """(module, level, imported names) of every import statement in ``path``."""
-    st = path.stat()
-    memo_key = (str(path), st.st_size, st.st_mtime_ns)
-    if memo_key in _IMPORTS_MEMO:
-        return _IMPORTS_MEMO[memo_key]
+def _parse_imports(source: bytes, path: Path) -> Imports:
     try:
-        tree = ast.parse(path.read_bytes(), filename=str(path))
+        tree = ast.parse(source, filename=str(path))
     except SyntaxError as exc:
         raise PipelineError(f"cannot compute the code version: syntax error in {path}:{exc.lineno}: {exc.msg}") from exc
-    found: list[tuple[str, int, tuple[str, ...]]] = []
+    found: Imports = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             found.extend((alias.name, 0, ()) for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
             found.append((node.module or "", node.level, tuple(a.name for a in node.names)))
-    _IMPORTS_MEMO[memo_key] = found
     return found
+
+
+def _read_file(path: Path) -> tuple[str, Imports]:
+    """(sha256 of the content, its import statements)."""
+    global _disk_added
+    digest = _plan_hashes.get(path) if _plan_hashes is not None else None
+    source = None
+    if digest is None:
+        source = path.read_bytes()
+        digest = hashlib.sha256(source).hexdigest()
+        if _plan_hashes is not None:
+            _plan_hashes[path] = digest
+    found = _IMPORTS_MEMO.get(digest)
+    if found is None and _disk is not None:
+        found = _disk.get(digest)
+    if found is None:
+        found = _parse_imports(path.read_bytes() if source is None else source, path)
+    _IMPORTS_MEMO[digest] = found
+    if _disk is not None:
+        if digest not in _disk:
+            _disk[digest] = found
+            _disk_added = True
+        _disk_used.add(digest)
+    return digest, found
+
+
+def _raw_imports(path: Path) -> Imports:
+    """(module, level, imported names) of every import statement in ``path``."""
+    return _read_file(path)[1]
+
+
+def _load_disk_memo(path: Path) -> dict[str, Imports]:
+    try:
+        data = json.loads(path.read_text())
+        if data.get("format") != _DISK_FORMAT or data.get("python") != list(sys.version_info[:2]):
+            return {}
+        return {str(digest): [(str(m), int(level), tuple(str(n) for n in names)) for m, level, names in imports]
+                for digest, imports in data["imports"].items()}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return {}  # absent or unreadable: every file is parsed, and the memo written again
+
+
+def _save_disk_memo(path: Path, memo: dict[str, Imports]) -> None:
+    if len(memo) > DISK_MEMO_ENTRIES:
+        memo = {d: v for d, v in memo.items() if d in _disk_used}
+    data = {"format": _DISK_FORMAT, "python": list(sys.version_info[:2]),
+            "imports": {d: [[m, level, list(names)] for m, level, names in v] for d, v in memo.items()}}
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(data, separators=(",", ":")))
+        os.replace(tmp, path)
+    except OSError:  # a read-only cache: the next run parses again, nothing else changes
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+@contextlib.contextmanager
+def persistent_imports(path: Path):
+    """Within the block, import lists come from and go to the JSON file ``path`` (keyed by content hash), and each
+    file is read and hashed once: a plan."""
+    global _disk, _disk_added, _plan_hashes
+    _disk, _disk_added, _plan_hashes = _load_disk_memo(path), False, {}
+    _disk_used.clear()
+    try:
+        yield
+        if _disk_added or len(_disk) > DISK_MEMO_ENTRIES:
+            _save_disk_memo(path, _disk)
+    finally:
+        _disk, _disk_added, _plan_hashes = None, False, None
+        _disk_used.clear()
 
 
 def _imported_modules(path: Path, module: str, is_package: bool) -> set[str]:
@@ -161,7 +244,7 @@ def code_version(run_module: str, project_packages: frozenset[str] = frozenset()
                 todo.append((name, found, found_is_pkg))
     files: dict[str, str] = {}
     for path, module in seen.items():
-        files[_display_path(path, module.split(".")[0])] = hashlib.sha256(path.read_bytes()).hexdigest()
+        files[_display_path(path, module.split(".")[0])] = _read_file(path)[0]
     digest = hashlib.sha256("\n".join(f"{k} {v}" for k, v in sorted(files.items())).encode()).hexdigest()
     return CodeVersion(digest=digest, files=dict(sorted(files.items())))
 

@@ -101,5 +101,23 @@ class MlflowOps:
                 raise
             self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset)])
 
+    def find_recorded(self, digest: str) -> dict | None:
+        """The newest finished parent run tagged ``pipeline.run_digest = digest`` with its stages' child runs, as
+        ``RecordedRun.to_json`` (``pipeline.run_record``: what the engine asks when it cannot read the store itself)."""
+        from mlflow.entities import ViewType
+
+        from pipeline.run_record import DIGEST_TAG, PARENT_TAG, STAGE_TAG
+
+        found = self.client.search_runs(
+            [self.experiment_id], filter_string=f"tags.`{DIGEST_TAG}` = '{digest}' and attributes.status = 'FINISHED'",
+            run_view_type=ViewType.ACTIVE_ONLY, max_results=1, order_by=["attributes.start_time DESC"])
+        if not found:
+            return None
+        run = found[0]
+        children = self.client.search_runs([self.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{run.info.run_id}'",
+                                           run_view_type=ViewType.ALL, max_results=1000)
+        return {"run_id": run.info.run_id, "name": run.info.run_name or "", "start_time": run.info.start_time,
+                "children": {c.data.tags[STAGE_TAG]: c.info.run_id for c in children if STAGE_TAG in c.data.tags}}
+
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)

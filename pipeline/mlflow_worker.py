@@ -1,9 +1,10 @@
 """The tracking worker: a child process that imports MLflow and performs ``MlflowOps`` calls sent as
 JSON lines on stdin, answering one JSON line each on stdout.
 
-Why a process: importing MLflow and its SQL store takes seconds, longer than everything else a no-op
-run does. Started before Hydra composes the config, the import runs on another core while the engine
-composes, hashes and plans, so an all-hit re-run waits for MLflow only once, at the end.
+Why a process: importing MLflow and its SQL store takes seconds and hundreds of modules. In the worker, the
+engine's own process never imports it, and the calls it only posts (log, end, artifacts) run while the next
+stage computes. The worker starts when the engine has something to log: an all-hit run that is already
+recorded (``pipeline.run_record``) starts none.
 """
 
 from __future__ import annotations

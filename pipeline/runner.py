@@ -20,8 +20,9 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from pipeline import tracking
-from pipeline.cache import VERIFY_MODES, Cache, Entry, now_iso
+from pipeline.cache import IMPORTS_MEMO, VERIFY_MODES, Cache, Entry, now_iso
 from pipeline.checks import check_values
+from pipeline.codeversion import persistent_imports
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
@@ -29,6 +30,7 @@ from pipeline.outputs import StageInputs, missing_outputs
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
 from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
+from pipeline.run_record import DIGEST_TAG, UNKNOWN, RecordedRun, find_in_sqlite, run_digest
 from pipeline.tracker import check_server, flatten_params, open_tracker
 
 
@@ -84,23 +86,26 @@ def _context(settings: dict) -> PlanContext:
 def _plan(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfig, cache: Cache,
           force: list[str], verify: str, context: PlanContext) -> list[StagePlan]:
     keys: dict[str, str] = {}
+    parts: dict[str, KeyParts] = {}
+    with persistent_imports(cache.root / IMPORTS_MEMO):  # each source file read once, parsed once per content
+        for name in selected:
+            try:
+                parts[name] = key_parts(specs[name], cfg, keys, context)
+            except OmegaConfBaseException as exc:
+                raise PipelineError(f"stage '{name}': cannot resolve its config {list(specs[name].config)}: "
+                                    f"{exc}") from exc
+            keys[name] = parts[name].key
     plans = []
     for name in selected:
-        spec = specs[name]
-        try:
-            parts = key_parts(spec, cfg, keys, context)
-        except OmegaConfBaseException as exc:
-            raise PipelineError(f"stage '{name}': cannot resolve its config {list(spec.config)}: {exc}") from exc
-        keys[name] = parts.key
         latest = cache.read_latest(name)
         if name in force:
-            plans.append(StagePlan(name, parts, hit=False, reason="forced (pipeline.force)", forced=True))
+            plans.append(StagePlan(name, parts[name], hit=False, reason="forced (pipeline.force)", forced=True))
             continue
-        entry, problem = cache.lookup(name, parts.key, verify)
+        entry, problem = cache.lookup(name, parts[name].key, verify)
         if entry is not None:
-            plans.append(StagePlan(name, parts, hit=True, reason=explain_hit(parts, latest), entry=entry))
+            plans.append(StagePlan(name, parts[name], hit=True, reason=explain_hit(parts[name], latest), entry=entry))
         else:
-            plans.append(StagePlan(name, parts, hit=False, reason=explain_miss(parts, latest, problem)))
+            plans.append(StagePlan(name, parts[name], hit=False, reason=explain_miss(parts[name], latest, problem)))
     return plans
 
 
@@ -314,31 +319,95 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     for name in selected:
         cache.sweep(name)
 
-    tracker = open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
+    record = _parent_record(cfg, plans, settings, launch_dir, overrides, left_out)
+    recorded, tracker = None, None
+    if all(p.hit for p in plans):  # nothing to compute: is this exact run already in MLflow?
+        recorded = find_in_sqlite(settings["uri"], settings["experiment"], record["digest"])
+        if recorded == UNKNOWN:  # not a store the engine reads itself: MLflow answers
+            tracker = open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
+            recorded = _ask_tracker(tracker, record["digest"])
+    if recorded is not None:
+        if tracker is not None:
+            tracker.close()
+        return _use_recorded(recorded, specs, plans, cache, settings, run_dir, left_out, t0)
+    tracker = tracker or open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0,
-                        launch)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch)
     finally:
         tracker.close()
 
 
-def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, overrides, left_out, t0,
-             launch: LaunchFile) -> dict:
+def _ask_tracker(tracker, digest: str) -> RecordedRun | None:
+    try:
+        return RecordedRun.from_json(tracker.find_recorded(digest))
+    except BaseException:
+        tracker.close()
+        raise
+
+
+def _parent_record(cfg, plans, settings, launch_dir, overrides, left_out) -> dict:
+    """The parent run's name, tags and params, and the digest that identifies them (``pipeline.run_record``)."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
-    parent_tags = {
+    tags = {
         "profile": str(cfg.get("profile_name", "")),
         "seed": str(cfg.get("seed", "")),
         "git_commit": _git_commit(launch_dir),
         "overrides": " ".join(overrides),
     }
     choices = _hydra_choices()
-    parent_tags.update({f"choice.{g}": o for g, o in choices.items()})
+    tags.update({f"choice.{g}": o for g, o in choices.items()})
     for plan in plans:  # the stages' resolve hooks' tags (e.g. what a stage started from) describe the run too
-        parent_tags.update(plan.parts.tags)
+        tags.update(plan.parts.tags)
+    name = _run_name(cfg, overrides, choices)
+    params = flatten_params(resolved)
+    digest = run_digest(settings["experiment"], name, tags, params, {p.name: p.key for p in plans}, left_out)
+    return {"name": name, "tags": tags, "params": params, "digest": digest}
+
+
+def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, run_dir, left_out, t0) -> dict:
+    """Every stage is a hit and this exact run is already recorded: name that run, log nothing."""
+    results: dict[str, dict] = {}
+    for plan in plans:
+        start = time.perf_counter()
+        entry = plan.entry
+        _check_outputs(specs[plan.name], entry.out_dir, "has a cache entry without")
+        _say(f"Stage '{plan.name}' didn't change, skipping" if plan.reason == "didn't change"
+             else f"Stage '{plan.name}': {plan.reason}, using it")
+        if cache.read_latest(plan.name) != plan.parts.to_json():
+            cache.write_latest(plan.name, plan.parts.to_json())
+        results[plan.name] = {
+            "key": plan.key, "hit": True, "reason": plan.reason, "seconds": time.perf_counter() - start,
+            "output_dir": str(entry.out_dir), "metrics": dict(entry.manifest.get("metrics", {})),
+            "mlflow_run_id": recorded.children.get(plan.name, ""),
+            "computed_by_run": entry.manifest.get("mlflow_run_id", ""),
+        }
+    summary = {
+        "pipeline_seconds": time.perf_counter() - t0,
+        "up_to_date": True,
+        "mlflow_run_id": recorded.run_id,
+        "already_recorded": True,
+        "tracking_uri": settings["uri"],
+        "experiment": settings["experiment"],
+        "cache_dir": str(cache.root),
+        "stages": results,
+        "not_run": left_out,
+    }
+    write_summary(run_dir, summary)
+    _say(summary_table(summary))
+    started = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(recorded.start_time / 1000))
+    _say(f"Already recorded: MLflow run {recorded.run_id} ('{recorded.name}', started {started}) has the same "
+         "cache keys, config, tags and commit; nothing new logged.")
+    _say("Pipeline up to date.")
+    return summary
+
+
+def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0,
+             launch: LaunchFile) -> dict:
+    parent_tags = {**record["tags"], DIGEST_TAG: record["digest"]}
     # Every stage child run carries them too: a child row alone says which seed and code made it.
     settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
-    parent_id = tracker.create_run(_run_name(cfg, overrides, choices), parent_tags)
-    tracker.log(parent_id, params=flatten_params(resolved))
+    parent_id = tracker.create_run(record["name"], parent_tags)
+    tracker.log(parent_id, params=record["params"])
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
     try:
@@ -361,6 +430,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, launch_dir, o
         "pipeline_seconds": total,
         "up_to_date": all(r["hit"] for r in results.values()),
         "mlflow_run_id": parent_id,
+        "already_recorded": False,
         "tracking_uri": settings["uri"],
         "experiment": settings["experiment"],
         "cache_dir": str(cache.root),

@@ -149,6 +149,9 @@ class WorkerTracker:
     def end(self, run_id, status="FINISHED"):
         self._send("end", {"run_id": run_id, "status": status})
 
+    def find_recorded(self, digest):
+        return self._call("find_recorded", digest=digest)
+
     def flush(self) -> None:
         """Wait until the worker has done every op sent so far; raise the first that failed."""
         self._receive()
@@ -168,23 +171,12 @@ class WorkerTracker:
                 self._proc.wait()
 
 
-_prestarted: WorkerTracker | None = None
-
-
-def prestart_worker() -> None:
-    """Start the worker now so MLflow imports while Hydra composes the config (CLI only)."""
-    global _prestarted
-    if _prestarted is None:
-        _prestarted = WorkerTracker()
-
-
 def open_tracker(uri: str, experiment: str, in_process: bool | None = None):
     """A tracker for ``uri``; by default in-process if MLflow is already imported, else the worker."""
-    global _prestarted
     if in_process is None:
         in_process = "mlflow" in sys.modules
     if in_process:
         return InProcessTracker(uri, experiment)
-    worker, _prestarted = (_prestarted or WorkerTracker()), None
+    worker = WorkerTracker()
     worker.open(uri, experiment)  # answered with the first create_run: a bad store fails before any stage
     return worker

@@ -1,5 +1,6 @@
 """Code versions come from static import analysis: own package + transitively imported project modules."""
 
+import json
 import sys
 
 from pipeline.codeversion import clear_memo, code_version
@@ -60,3 +61,33 @@ def test_a_change_in_a_library_package_changes_the_key_only_when_code_packages_n
     clear_memo()
     assert key(**named) != before, "a change in a named library package changes the stage's key"
     assert key() == before_unnamed, "a package code_packages does not name is not followed"
+
+
+def test_import_lists_persist_by_content_and_an_edit_is_parsed_again(toy, monkeypatch):
+    import pipeline.codeversion as cv
+
+    memo = toy.root / "memo.json"
+    module = f"{toy.package}.alpha.stage"
+    with cv.persistent_imports(memo):
+        first = code_version(module, frozenset({toy.package, "pipeline"}))
+    assert memo.is_file()
+    cv._IMPORTS_MEMO.clear()  # a new process: only the file remembers
+    parsed = []
+    real_parse = cv._parse_imports
+    monkeypatch.setattr(cv, "_parse_imports", lambda source, path: parsed.append(path.name) or real_parse(source, path))
+    with cv.persistent_imports(memo):
+        again = code_version(module, frozenset({toy.package, "pipeline"}))
+    assert again == first and parsed == [], "nothing parsed: every file's imports came from the memo"
+
+    toy.edit("common.py", "import json\n\nfrom .unused import X\n\ndef scale(x):\n    return 2 * x + X - 1\n")
+    cv._IMPORTS_MEMO.clear()
+    with cv.persistent_imports(memo):
+        edited = code_version(module, frozenset({toy.package, "pipeline"}))
+    assert sorted(parsed) == ["common.py", "unused.py"], "only the edited file and the one it now imports are parsed"
+    assert f"{toy.package}/unused.py" in edited.files and edited.digest != first.digest
+
+    memo.write_text("{not json")  # a damaged memo is ignored and written again
+    cv._IMPORTS_MEMO.clear()
+    with cv.persistent_imports(memo):
+        assert code_version(module, frozenset({toy.package, "pipeline"})) == edited
+    assert json.loads(memo.read_text())["format"] == cv._DISK_FORMAT

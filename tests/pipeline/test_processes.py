@@ -130,6 +130,56 @@ def test_cli_runs_hydra_app_with_tracking_worker_and_rerun_is_up_to_date(toy):
     assert bad.returncode == 1 and "error: pipeline.until: unknown stage(s) ['zeta']" in bad_stderr
 
 
+# The CLI in a process that, at exit, lists the heavy modules it imported and the commands it started.
+WATCHED_CLI = """
+import atexit, json, subprocess, sys
+started = []
+_popen_init = subprocess.Popen.__init__
+def _recording_init(self, args, *a, **k):
+    started.append([str(x) for x in args] if isinstance(args, (list, tuple)) else [str(args)])
+    _popen_init(self, args, *a, **k)
+subprocess.Popen.__init__ = _recording_init
+package, report = sys.argv[1:3]
+def _report():
+    heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("mlflow", "torch", "lightning", "sqlalchemy")
+                   or m.startswith(package))
+    with open(report, "w") as f:
+        json.dump({"modules": heavy, "started": started}, f)
+atexit.register(_report)
+sys.argv = ["pipeline", *sys.argv[3:]]
+from pipeline.cli import main
+main()
+"""
+
+
+@pytest.mark.slow
+def test_an_all_hit_rerun_already_recorded_imports_no_mlflow_and_no_stage_code(toy):
+    conf = toy.root / "conf"
+    conf.mkdir()
+    (conf / "toy.yaml").write_text(TOY_ROOT_CONFIG.format(uri=toy.db_uri, pkg=toy.package))
+    args = ["--config-path", str(conf), "--config-name", "toy"]
+
+    def cli(name):
+        report = toy.root / f"{name}.json"
+        done = subprocess.run([sys.executable, "-c", WATCHED_CLI, toy.package, str(report), *args], cwd=toy.root,
+                              env=_env(toy), capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stdout + done.stderr
+        return done.stdout, json.loads(report.read_text())
+
+    first_out, first = cli("first")
+    assert any(m.startswith(toy.package) for m in first["modules"]), "the first run computes: stage code imported"
+    assert any("pipeline.mlflow_worker" in c for c in first["started"]), "and logs through the tracking worker"
+    again_out, again = cli("again")
+    assert again["modules"] == [], again["modules"]
+    assert not any("pipeline.mlflow_worker" in c for c in again["started"]), again["started"]
+    first_summary, again_summary = sorted((toy.root / "runs").glob("*/summary.json"))
+    recorded = json.loads(first_summary.read_text())["mlflow_run_id"]
+    assert json.loads(again_summary.read_text())["mlflow_run_id"] == recorded
+    assert f"Already recorded: MLflow run {recorded} " in again_out
+    mlflow.set_tracking_uri(toy.db_uri)
+    assert len(mlflow.search_runs(experiment_names=["cli"], output_format="list")) == 3  # the parent and a, b
+
+
 def _square(x: int) -> int:
     return x * x
 

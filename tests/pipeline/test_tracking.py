@@ -9,6 +9,7 @@ import mlflow
 import pytest
 
 from pipeline.errors import PipelineError
+from pipeline.run_record import DIGEST_TAG
 from pipeline.runner import run_pipeline
 from pipeline.tracker import flatten_params
 from pipeline.tracking import stage_run_info
@@ -21,15 +22,18 @@ def runs(toy):
 
 def test_parent_and_child_runs_carry_params_metrics_and_cache_tags(toy):
     first = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
-    second = run_pipeline(toy.config(), run_dir=toy.root / "run2", in_process_tracking=True)
+    # Another config that leaves every key as it was: all hits, and a run of its own (its params differ).
+    second = run_pipeline(toy.config(**{"unrelated.knob": 2}), run_dir=toy.root / "run2", in_process_tracking=True)
     by_id = {r.info.run_id: r for r in runs(toy)}
     assert len(by_id) == 2 * 4
+    assert second["up_to_date"] and not second["already_recorded"]
 
     parent = by_id[second["mlflow_run_id"]]
     assert parent.info.run_name == "toy"
     assert parent.data.tags["profile"] == "toy" and parent.data.tags["seed"] == "7"
     assert "git_commit" in parent.data.tags
-    assert parent.data.params["alpha.value"] == "3"
+    assert parent.data.params["alpha.value"] == "3" and parent.data.params["unrelated.knob"] == "2"
+    assert parent.data.tags[DIGEST_TAG] != by_id[first["mlflow_run_id"]].data.tags[DIGEST_TAG]
     assert parent.data.params["pipeline.stages.a.config"] == '["alpha", "seed"]'
     assert parent.data.metrics["alpha.value"] == 6.0 and parent.data.metrics["beta.sum"] == 16.0
     assert {"a.seconds", "b.seconds", "c.seconds", "pipeline.seconds"} <= set(parent.data.metrics)
@@ -46,6 +50,43 @@ def test_parent_and_child_runs_carry_params_metrics_and_cache_tags(toy):
     assert hit.info.status == "FINISHED"
     artifacts = mlflow.MlflowClient(toy.db_uri).list_artifacts(computed.info.run_id)
     assert [a.path for a in artifacts] == ["report.md"]
+
+
+def test_an_all_hit_rerun_already_recorded_names_that_run_and_logs_nothing(toy, capsys):
+    first = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
+    again = run_pipeline(toy.config(), run_dir=toy.root / "run2", in_process_tracking=True)
+    assert len(runs(toy)) == 4, "no second parent run, no hit child runs"
+    out = capsys.readouterr().out
+    assert f"Already recorded: MLflow run {first['mlflow_run_id']} ('toy', started " in out
+    assert out.rstrip().endswith("Pipeline up to date.")
+    written = json.loads((toy.root / "run2" / "summary.json").read_text())
+    assert written == json.loads(json.dumps(again))
+    assert again["already_recorded"] and again["up_to_date"] and again["mlflow_run_id"] == first["mlflow_run_id"]
+    for name, stage in again["stages"].items():  # each stage names the recorded run's child, which computed it
+        assert stage["hit"] and stage["mlflow_run_id"] == first["stages"][name]["mlflow_run_id"]
+        assert stage["computed_by_run"] == first["stages"][name]["mlflow_run_id"]
+        assert stage["metrics"] == first["stages"][name]["metrics"] and stage["key"] == first["stages"][name]["key"]
+
+    # The recorded run deleted in the UI, or a stage forced: logged again.
+    mlflow.MlflowClient(toy.db_uri).delete_run(first["mlflow_run_id"])
+    third = run_pipeline(toy.config(), run_dir=toy.root / "run3", in_process_tracking=True)
+    assert not third["already_recorded"] and third["mlflow_run_id"] != first["mlflow_run_id"]
+    forced = run_pipeline(toy.config(**{"pipeline.force": ["c"]}), run_dir=toy.root / "run4", in_process_tracking=True)
+    assert not forced["already_recorded"] and not forced["up_to_date"]
+    assert len(runs(toy)) == 3 + 4 + 4  # the deleted parent's children, then the third and forced runs
+
+
+def test_a_store_the_engine_cannot_read_itself_is_asked_through_mlflow(toy, monkeypatch):
+    import pipeline.runner as runner
+    from pipeline.run_record import UNKNOWN
+
+    first = run_pipeline(toy.config(), run_dir=toy.root / "run", in_process_tracking=True)
+    monkeypatch.setattr(runner, "find_in_sqlite", lambda *args: UNKNOWN)
+    again = run_pipeline(toy.config(), run_dir=toy.root / "run2", in_process_tracking=True)
+    assert again["already_recorded"] and again["mlflow_run_id"] == first["mlflow_run_id"]
+    assert {n: s["mlflow_run_id"] for n, s in again["stages"].items()} == {
+        n: s["mlflow_run_id"] for n, s in first["stages"].items()}
+    assert len(runs(toy)) == 4
 
 
 def test_stage_sees_its_child_run_and_none_outside(toy):
