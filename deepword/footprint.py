@@ -597,6 +597,35 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     return fused
 
 
+def frame_footprints(views: list[tuple[Record, Camera]], prior: FootprintPrior, radius_m: float,
+                     use_relations: bool = True) -> tuple[list[Estimate], list[tuple[Box3D, list[Estimate]]]]:
+    """One frame's footprints, as the bev stage scores them and ``deepword infer`` writes them: the estimates of its
+    images (``estimate_frame``: the weak ones with their neighbours' axes across the frame's cameras) and their fusion
+    (``fuse_frame`` within ``radius_m``, headings by the roles' votes and the prior's heading table; ``use_relations=
+    False``, the ``box_bottom`` baseline: neither)."""
+    estimates = estimate_frame(views, prior, use_relations)
+    return estimates, fuse_frame(estimates, radius_m, prior if use_relations else None)
+
+
+def footprint_json(box: Box3D, group: list[Estimate]) -> dict:
+    """One fused footprint as the bev stage's ``footprints/*.jsonl`` and ``deepword infer``'s ``footprints.jsonl``
+    write it: the box, the evidence it rests on, the cameras that saw it, its confidence and where its heading's
+    direction came from (``roles``: the wheels' roles voted, with the prior; ``axis``: the prior alone, or nothing)."""
+    return {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group}),
+            "confidence": round(group_confidence(group), 4), "heading_from": "roles" if group_directed(group) else "axis"}
+
+
+def write_footprints(path, fused: dict[int, list[tuple[Box3D, list[Estimate]]]]) -> None:
+    """Fused footprints per frame, one JSON line per frame (``footprint_json`` per footprint): the bev stage's
+    ``footprints/<boxes>_<method>.jsonl`` and ``deepword infer``'s ``footprints.jsonl``."""
+    import json
+
+    with open(path, "w") as fh:
+        for frame in sorted(fused):
+            fh.write(json.dumps({"frame_id": frame, "footprints": [footprint_json(box, group)
+                                                                   for box, group in fused[frame]]}) + "\n")
+
+
 def group_confidence(group: list[Estimate]) -> float:
     """A fused footprint's confidence: the highest of its estimates'."""
     return max(e.confidence for e in group)

@@ -1,21 +1,34 @@
-"""Footprints for predictions outside the pipeline (``deepword infer``): one image at a time, with the
-footprint prior the bev stage fitted on train and a calibration from the dataset or a WoodScape JSON file."""
+"""Footprints for predictions outside the pipeline (``deepword infer``): frame by frame (the images of one instant
+estimated and fused together, the bev stage's ``frame_footprints``), with the footprint prior the bev stage fitted on
+train (its shape statistics and heading table, ``footprint_prior.json``) and a calibration from the dataset or a
+WoodScape JSON file."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from deepword.cameras import Camera, camera_from_calibration
-from deepword.footprint import FootprintPrior, estimate_record, fuse_frame, group_directed, wheel_contacts
-from deepword.format_3d import check_calibration
+from deepword.footprint import (
+    Estimate,
+    FootprintPrior,
+    footprint_json,
+    frame_footprints,
+    group_directed,
+    wheel_contacts,
+    write_footprints,
+)
+from deepword.format_3d import Box3D, check_calibration
 from deepword.top_view import top_view
 from deepword.word_format import CAMERAS, WHEEL, Record
 
-PRIOR_FILE = "footprint_prior.json"
+PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape statistics, heading table)
+BEV_REPORT = "bev.json"                 # the bev stage's numbers, with the fusion radius it used
+FOOTPRINTS_FILE = "footprints.jsonl"    # infer's fused footprints per frame, as the bev stage's footprints/*.jsonl
+DEFAULT_FUSE_RADIUS_M = 1.5             # conf/bev/default.yaml's fuse_radius_m, for a bev output without bev.json's
 
 
 class CalibrationError(ValueError):
@@ -47,27 +60,78 @@ def read_calibration_file(path: Path, width: int, height: int) -> dict:
     return cal
 
 
-def footprints(pred: Record, cam: Camera, prior: FootprintPrior) -> tuple[Record, list, np.ndarray]:
-    """(the prediction with its estimated footprints as ``objects_3d``, the estimates, the wheels' contact
-    points). The footprints are in the calibration's vehicle frame; ``evidence`` says what each rests on."""
-    estimates = estimate_record(pred, cam, prior)
-    wheels = pred.boxes[pred.class_ids == WHEEL]
-    contacts = np.zeros((0, 2))
-    objs = {str(e.vehicle_box_id): {**e.box.to_json(), "evidence": e.evidence} for e in estimates}
-    if len(wheels):
-        xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
-        contacts = xy[ok]
-        objs.update({str(int(w[6])): {"contact": [round(float(v), 4) for v in xy[i]]}
-                     for i, w in enumerate(wheels) if ok[i]})
-    return replace(pred, extra={**pred.extra, "objects_3d": objs}), estimates, contacts
+@dataclass
+class Frame:
+    """One instant's footprints: its images with their cameras, the frame's fused footprints (the bev stage's
+    ``frame_footprints``) and each image's wheel contact points."""
+
+    frame_id: int
+    views: list[tuple[Record, Camera]]
+    fused: list[tuple[Box3D, list[Estimate]]]
+    contacts: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]   # image -> (wheel boxes, contacts, valid)
+
+    def groups_of(self, image: str) -> list[tuple[Box3D, list[Estimate]]]:
+        """The fused footprints one of whose estimates comes from ``image``."""
+        return [(box, g) for box, g in self.fused if any(e.image == image for e in g)]
 
 
-def beside_top_view(overlay: np.ndarray, cam: Camera, estimates: list, contacts: np.ndarray,
-                    half_extent_m: float = 12.0) -> np.ndarray:
-    """The overlay with a top view of the image's footprints to its right, as tall as the overlay."""
+def load_fuse_radius(bev_dir: Path) -> float:
+    """The fusion radius the bev stage used (its ``bev.json``), else the configured default."""
+    path = Path(bev_dir) / BEV_REPORT
+    if path.is_file():
+        radius = json.loads(path.read_text()).get("fuse_radius_m")
+        if radius is not None:
+            return float(radius)
+    return DEFAULT_FUSE_RADIUS_M
+
+
+def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
+                    fuse_radius_m: float = DEFAULT_FUSE_RADIUS_M) -> dict[int, Frame]:
+    """The footprints of every frame among ``views`` [(prediction, camera)], grouped by ``frame_id``: each frame's
+    images estimated and fused together (``frame_footprints``, as the bev stage does: neighbours' axes across the
+    cameras, headings by the roles' votes and the prior's heading table)."""
+    by_frame: dict[int, list] = {}
+    for pred, cam in views:
+        by_frame.setdefault(pred.frame_id, []).append((pred, cam))
+    frames = {}
+    for frame_id, fviews in by_frame.items():
+        _, fused = frame_footprints(fviews, prior, fuse_radius_m)
+        contacts = {}
+        for pred, cam in fviews:
+            wheels = pred.boxes[pred.class_ids == WHEEL]
+            xy, ok = wheel_contacts(cam, wheels[:, :4], prior) if len(wheels) else (np.zeros((0, 2)), np.zeros(0, bool))
+            contacts[pred.image] = (wheels, xy, ok)
+        frames[frame_id] = Frame(frame_id, fviews, fused, contacts)
+    return frames
+
+
+def with_objects_3d(pred: Record, frame: Frame) -> Record:
+    """The prediction with its frame's footprints as ``objects_3d``: per vehicle box the fused footprint its estimate
+    joined (``footprint_json``: box, evidence, the cameras that saw it, confidence, ``heading_from``), per wheel its
+    contact point; in the calibration's vehicle frame."""
+    objs = {str(e.vehicle_box_id): footprint_json(box, g)
+            for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image}
+    wheels, xy, ok = frame.contacts[pred.image]
+    objs.update({str(int(w[6])): {"contact": [round(float(v), 4) for v in xy[i]]}
+                 for i, w in enumerate(wheels) if ok[i]})
+    return replace(pred, extra={**pred.extra, "objects_3d": objs})
+
+
+def image_contacts(frame: Frame, image: str) -> np.ndarray:
+    _, xy, ok = frame.contacts[image]
+    return xy[ok] if len(xy) else np.zeros((0, 2))
+
+
+def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m: float = 12.0) -> np.ndarray:
+    """The overlay with a top view of its image's footprints (as fused over the frame) to its right, as tall as the
+    overlay."""
     h = overlay.shape[0]
-    view = top_view([], [e.box for e in estimates], contacts, cam.translation[None, :2],
-                    f"{len(estimates)} footprints, camera {cam.name}", half_extent_m, size_px=max(h - 24, 64))
+    cam = next(c for p, c in frame.views if p.image == image)
+    groups = frame.groups_of(image)
+    view = top_view([], [b for b, _ in groups], image_contacts(frame, image), cam.translation[None, :2],
+                    f"{len(groups)} footprints, camera {cam.name}", half_extent_m, size_px=max(h - 24, 64),
+                    cameras=[g[0].camera for _, g in groups], directed=[group_directed(g) for _, g in groups],
+                    seen_by=[len({e.camera for e in g}) for _, g in groups])
     if view.shape[0] != h:
         pad = np.full((h, view.shape[1], 3), 255, np.uint8)
         pad[: min(h, view.shape[0])] = view[:h]
@@ -98,35 +162,36 @@ def calibration_camera(cal: dict, path: Path, default: str) -> str:
     return default
 
 
-def frame_top_view(views: list, title: str, half_extent_m: float = 14.0, fuse_radius_m: float = 1.5,
-                   size_px: int = 420) -> np.ndarray:
-    """One instant's top view: the footprints of its images ``views`` [(camera, estimates, contacts)] fused as the
-    bev stage fuses a frame's cameras (``fuse_frame``), around the rig of all their cameras, coloured by camera."""
-
-    fused = fuse_frame([e for _, estimates, _ in views for e in estimates], fuse_radius_m)
-    rig = np.array([cam.translation[:2] for cam, _, _ in views])
-    contacts = [c for _, _, c in views if len(c)]
+def frame_top_view(frame: Frame, title: str, half_extent_m: float = 14.0, size_px: int = 420) -> np.ndarray:
+    """One instant's top view: the frame's fused footprints around the rig of all its cameras, coloured by the camera
+    whose estimate leads each, an arrow to the front where the wheels' roles voted."""
+    rig = np.array([cam.translation[:2] for _, cam in frame.views])
+    contacts = [image_contacts(frame, p.image) for p, _ in frame.views]
+    fused = frame.fused
     return top_view([], [b for b, _ in fused], np.concatenate(contacts) if contacts else np.zeros((0, 2)), rig,
-                    f"{title}: {len(fused)} vehicles, {len(views)} cameras", half_extent_m, size_px,
+                    f"{title}: {len(fused)} vehicles, {len(frame.views)} cameras", half_extent_m, size_px,
                     cameras=[g[0].camera for _, g in fused], directed=[group_directed(g) for _, g in fused],
                     seen_by=[len({e.camera for e in g}) for _, g in fused])
 
 
-def write_frame_views(out_dir: Path, preds: list[Record], views: dict) -> list[Path]:
-    """``out_dir/top_views/frame_<id>.png`` for every frame of ``preds`` with footprints from two or more images
-    (a single image's top view is beside its overlay already)."""
+def write_frame_views(out_dir: Path, frames: dict[int, Frame], shown: set[str] | None = None) -> list[Path]:
+    """``out_dir/top_views/frame_<id>.png`` for every frame of two or more images (a single image's top view is
+    beside its overlay already) one of whose images is in ``shown`` (every frame when None)."""
     import cv2
 
-    by_frame: dict[int, list] = {}
-    for pred in preds:
-        if pred.image in views:
-            by_frame.setdefault(pred.frame_id, []).append(views[pred.image])
     paths = []
-    for frame, frame_views in sorted(by_frame.items()):
-        if len(frame_views) < 2:
+    for frame_id, frame in sorted(frames.items()):
+        if len(frame.views) < 2 or (shown is not None and not any(p.image in shown for p, _ in frame.views)):
             continue
-        path = Path(out_dir) / FRAME_VIEW_DIR / f"frame_{frame:06d}.png"
+        path = Path(out_dir) / FRAME_VIEW_DIR / f"frame_{frame_id:06d}.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), cv2.cvtColor(frame_top_view(frame_views, f"frame {frame}"), cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(path), cv2.cvtColor(frame_top_view(frame, f"frame {frame_id}"), cv2.COLOR_RGB2BGR))
         paths.append(path)
     return paths
+
+
+def write_frame_footprints(out_dir: Path, frames: dict[int, Frame]) -> Path:
+    """``out_dir/footprints.jsonl``: each frame's fused footprints, as the bev stage writes ``footprints/*.jsonl``."""
+    path = Path(out_dir) / FOOTPRINTS_FILE
+    write_footprints(path, {f: frame.fused for f, frame in frames.items()})
+    return path

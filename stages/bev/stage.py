@@ -14,6 +14,11 @@ MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.det
 bins; and the paired medians as ``bev.<boxes>.<method>.<metric>`` (matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
 visible) and ``hard`` (in a hard test image) within the range, and ``<lo>_<hi>m`` distance bins.
+
+With the held-out domain among its inputs (``shift_data``: evaluate scored it too, its predictions under
+``shift/predictions/``) the same keys under ``bev.shift.`` (``bev.shift.<boxes>.<method>.<subset>.<metric>``),
+footprints under ``shift/footprints/`` and figures ``artifacts/shift_top_view_*.png``; the held-out domain has no
+train split, so its footprints use the prior fitted on the in-domain train split.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import math
 import random
 import shutil
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -30,13 +36,13 @@ import numpy as np
 
 from deepword.footprint import (
     FootprintPrior,
-    estimate_frame,
     fit_prior,
-    fuse_frame,
+    frame_footprints,
     group_confidence,
     group_directed,
     group_wheels,
     wheel_contacts,
+    write_footprints,
 )
 from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
 from deepword.top_view import panel_grid, top_view
@@ -140,13 +146,14 @@ def scored(fused_frame: list) -> list[Scored]:
 
 def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict, prior: FootprintPrior,
                     use_relations: bool, fuse_radius: float) -> dict[int, list]:
-    """Fused footprints per frame for one method on one box source."""
+    """Fused footprints per frame for one method on one box source (``frame_footprints``: what ``deepword infer``
+    gives the same frame)."""
     views = defaultdict(list)
     for rec in test:
         pred = preds.get(rec.image)
         if pred is not None:
             views[rec.frame_id].append((pred, cameras[rec.image]))
-    return {f: fuse_frame(estimate_frame(views.get(f, []), prior, use_relations), fuse_radius, prior if use_relations else None)
+    return {f: frame_footprints(views.get(f, []), prior, fuse_radius, use_relations)[1]
             for f in {r.frame_id for r in test}}
 
 
@@ -156,7 +163,6 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     artifacts = out_dir / "artifacts"
     artifacts.mkdir(parents=True, exist_ok=True)
     ds = open_dataset(inputs["data"])
-    test = ds.subset("test")
     if not check_3d(ds.records):
         first = ds.records[0]
         file, line = first.source or (first.image, None)
@@ -166,19 +172,70 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
         (out_dir / "bev_report.md").write_text(f"# Bird's-eye view\n\n{note}\n")
         shutil.copy(out_dir / "bev_report.md", artifacts / "bev_report.md")
         return {}
-    prior = train_prior(ds, int(bcfg.fit_images), seed)
+    # the prior as shipped (rounded in footprint_prior.json): what deepword infer reads, so both give one footprint
+    prior = FootprintPrior.from_json(train_prior(ds, int(bcfg.fit_images), seed).to_json())
     (out_dir / PRIOR_FILE).write_text(json.dumps(prior.to_json(), indent=1))
+    e2e = end_to_end_method(inputs.output("evaluate", "report"))
+    domain = score_domain(ds, "", inputs, prior, bcfg, out_dir)
+    report = {**domain.report, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
+              "match_m": float(bcfg.match_m), "fuse_radius_m": float(bcfg.fuse_radius_m)}
+    metrics = flatten(domain.results, domain.detection)
+    figures = write_figures(artifacts, domain.test, domain.truth, domain.cameras, domain.fused_by, prior, bcfg, e2e)
+    if "shift_data" in inputs:   # the held-out domain: evaluate's predictions there, the same prior (fitted in domain)
+        heldout = open_dataset(inputs["shift_data"])
+        if check_3d(heldout.records):
+            shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir)
+            report["shift"] = shift.report
+            metrics |= flatten(shift.results, shift.detection, "bev.shift")
+            figures += write_figures(artifacts, shift.test, shift.truth, shift.cameras, shift.fused_by, prior, bcfg,
+                                     e2e, prefix="shift_")
+        else:
+            report["notes"].append("held-out domain: no `calibration` / `objects_3d` keys, no held-out rows")
+    (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
+    (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
+    for name in ("bev_report.md", "bev.json", PRIOR_FILE):
+        shutil.copy(out_dir / name, artifacts / name)
+    print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png, artifacts/shift_top_view_*.png)")
+    return metrics
+
+
+HELDOUT_PREFIX = "shift/"   # evaluate's held-out predictions (its `domain_predictions` output) and bev's own
+
+
+@dataclass
+class Domain:
+    """One dataset's test split scored: the paired medians and detection scores per box source and method, the
+    fused footprints per (boxes, method) and frame, and what the figures need."""
+
+    test: list
+    truth: dict
+    cameras: dict
+    results: dict
+    detection: dict
+    fused_by: dict
+    notes: list
+
+    @property
+    def report(self) -> dict:
+        return {"results": self.results, "detection": self.detection, "notes": self.notes, "frames": len(self.truth)}
+
+
+def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: FootprintPrior, bcfg, out_dir: Path) -> Domain:
+    """Footprints of every method evaluate predicted on ``ds``'s test split (``prefix`` "" in domain, ``shift/`` the
+    held-out domain: evaluate's ``<prefix>predictions/`` in, the stage's ``<prefix>footprints/`` out), scored."""
+    test = ds.subset("test")
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
     results, detection, notes, fused_by = {}, {}, [], {}
-    (out_dir / "footprints").mkdir(exist_ok=True)
+    (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
     for boxes in bcfg.box_sources:
-        predictions = {m: inputs.output("evaluate", "predictions", boxes=boxes, method=m) for m in bcfg.methods}
+        predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
+                       for m in bcfg.methods}
         methods = [m for m in bcfg.methods if predictions[m].is_file()]
         for m in bcfg.methods:
             if m not in methods:
-                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {predictions[m].name}")
+                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
         if not methods:
             continue
         results[boxes] = {}
@@ -194,44 +251,26 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
             frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
             detection.setdefault(boxes, {})[method] = {
                 name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
-            write_footprints(out_dir / "footprints" / f"{boxes}_{method}.jsonl", fused)
-    report = {"results": results, "detection": detection, "notes": notes, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
-              "match_m": float(bcfg.match_m), "frames": len(truth)}
-    (out_dir / "bev.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "bev_report.md").write_text(render_report(report, bcfg))
-    figures = write_figures(artifacts, test, truth, cameras, fused_by, prior, bcfg, end_to_end_method(inputs.output("evaluate", "report")))
-    for name in ("bev_report.md", "bev.json", PRIOR_FILE):
-        shutil.copy(out_dir / name, artifacts / name)
-    print(f"bev: {len(figures)} top-view figures (artifacts/top_view_*.png)")
-    return flatten(results, detection)
+            write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
+    return Domain(test, truth, cameras, results, detection, fused_by, notes)
 
 
-def flatten(results: dict, detection: dict | None = None) -> dict[str, float]:
+def flatten(results: dict, detection: dict | None = None, root: str = "bev") -> dict[str, float]:
     """MLflow keys: the paired medians ``bev.<boxes>.<method>[.<population>].<metric>`` (METRICS) and the
     detection scores ``bev.<boxes>.<method>.<subset>.<metric>`` (DETECTION_METRICS; subsets ``all``,
-    ``two_wheels``, ``one_wheel``, ``no_wheel``, ``<lo>-<hi>m``)."""
+    ``two_wheels``, ``one_wheel``, ``no_wheel``, ``<lo>-<hi>m``); ``root`` ``bev.shift``: the held-out domain's."""
     out = {}
     for boxes, by_method in (detection or {}).items():
         for method, by_subset in by_method.items():
             for subset, vals in by_subset.items():
-                out.update({f"bev.{boxes}.{method}.{subset}.{k}": float(vals[k])
+                out.update({f"{root}.{boxes}.{method}.{subset}.{k}": float(vals[k])
                             for k in DETECTION_METRICS if not math.isnan(vals[k])})
     for boxes, by_method in results.items():
         for method, by_pop in by_method.items():
             for pop, vals in by_pop.items():
-                prefix = f"bev.{boxes}.{method}." + (f"{pop}." if pop else "")
+                prefix = f"{root}.{boxes}.{method}." + (f"{pop}." if pop else "")
                 out.update({prefix + k: float(vals[k]) for k in METRICS if not math.isnan(vals[k])})
     return out
-
-
-def write_footprints(path: Path, fused: dict[int, list]) -> None:
-    with open(path, "w") as fh:
-        for frame in sorted(fused):
-            fh.write(json.dumps({"frame_id": frame, "footprints": [
-                {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group}),
-                 "confidence": round(group_confidence(group), 4),
-                 "heading_from": "roles" if group_directed(group) else "axis"}
-                for box, group in fused[frame]]}) + "\n")
 
 
 DETECTION_COLUMNS = (("ap", "AP"), ("ap_0p5m", "AP 0.5m"), ("ap_1m", "AP 1m"), ("ap_2m", "AP 2m"),
@@ -240,14 +279,14 @@ DETECTION_COLUMNS = (("ap", "AP"), ("ap_0p5m", "AP 0.5m"), ("ap_1m", "AP 1m"), (
                      ("precision", "precision"))
 
 
-def render_detection(detection: dict) -> list[str]:
+def render_detection(detection: dict, domain: str = "") -> list[str]:
     lines = ["Scored the nuScenes way on each frame's fused footprints: AP (%) with centre-distance matching at "
              "0.5/1/2/4 m over estimates ranked by confidence, `AP` their mean; ATE, ASE (1 - IoU of the aligned "
              "sizes), AOE over 360 deg and modulo 180 deg: recall-averaged true-positive errors at 2 m; IoU: mean BEV "
              "IoU of the 2 m matches; recall, precision (%) at 2 m. Subsets: `all`, `two_wheels`, `one_wheel`, "
              "`no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
     for boxes, by_method in detection.items():
-        lines += [f"## {boxes} boxes: detection scores", "",
+        lines += [f"## {domain}{boxes} boxes: detection scores", "",
                   "| method | subset | vehicles | estimates | " + " | ".join(h for _, h in DETECTION_COLUMNS) + " |",
                   "|---|---|---:|---:|" + "---:|" * len(DETECTION_COLUMNS)]
         for subset in next(iter(by_method.values())):
@@ -260,16 +299,14 @@ def render_detection(detection: dict) -> list[str]:
     return lines
 
 
-def render_report(report: dict, bcfg) -> str:
-    lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", ""]
-    lines += render_detection(report.get("detection", {}))
-    lines += ["## Paired medians", "",
+def render_medians(report: dict, part: dict, domain: str = "") -> list[str]:
+    lines = [f"## {domain}Paired medians", "",
              f"Matched by BEV centre distance <= {report['match_m']:g} m; medians over matched vehicles; recall in %. "
              f"Rows `all`, `paired` (two same-side wheels visible) and `hard` count vehicles within "
              f"{report['max_range_m']:g} m of the vehicle frame's origin (under the ego's rear axle); the other rows "
-             f"are distance bins. Headings modulo 180 deg. {report['frames']} test frames.", ""]
-    for boxes, by_method in report["results"].items():
-        lines += [f"### {boxes} boxes", "", "| method | vehicles | " + " | ".join(METRICS) + " |",
+             f"are distance bins. Headings modulo 180 deg. {part['frames']} test frames.", ""]
+    for boxes, by_method in part["results"].items():
+        lines += [f"### {domain}{boxes} boxes", "", "| method | vehicles | " + " | ".join(METRICS) + " |",
                   "|---|---|" + "---:|" * len(METRICS)]
         pops = list(next(iter(by_method.values())))
         for pop in pops:
@@ -278,8 +315,22 @@ def render_report(report: dict, bcfg) -> str:
                 cells = " | ".join("-" if math.isnan(v[k]) else f"{v[k]:.3g}" for k in METRICS)
                 lines.append(f"| {method} ({pop or 'all'}) | {int(v['vehicles'])} | {cells} |")
         lines.append("")
+    return lines
+
+
+def render_report(report: dict, bcfg) -> str:
+    lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", ""]
+    lines += render_detection(report.get("detection", {}))
+    lines += render_medians(report, report)
+    shift = report.get("shift")
+    if shift:
+        lines += ["# Held-out domain (`shift_data`): the same prior, fitted on the in-domain train split", ""]
+        lines += render_detection(shift["detection"], "held-out ") + render_medians(report, shift, "held-out ")
+        lines += [f"- held-out: {n}" for n in shift["notes"]]
     p = report["prior"]
-    lines += ["Footprint prior fitted on the train split's 3D truth: " + ", ".join(f"{k}={v:g}" for k, v in p.items()), ""]
+    scalars = ", ".join(f"{k}={v:g}" for k, v in p.items() if not isinstance(v, dict))
+    table = f"; heading table: {len(p['heading'])} cells and axis classes" if p.get("heading") else ""
+    lines += [f"Footprint prior fitted on the train split's 3D truth: {scalars}{table}", ""]
     lines += [f"- {n}" for n in report["notes"]]
     return "\n".join(lines) + "\n"
 
@@ -291,7 +342,7 @@ def end_to_end_method(report: Path) -> str:
 
 
 def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dict, fused_by: dict,
-                  prior: FootprintPrior, bcfg, detected_method: str = "deepword") -> list[Path]:
+                  prior: FootprintPrior, bcfg, detected_method: str = "deepword", prefix: str = "") -> list[Path]:
     """One figure per sample frame (the frames with the most vehicles in range, evenly spread): the truth alone,
     then a top view per method on ground-truth boxes, and ``detected_method`` (the end-to-end method) on detected
     boxes when there are (DeepWORD when that method has no footprints here); each with the truth under the four
@@ -327,7 +378,7 @@ def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dic
                                    cameras=[g[0].camera for _, g in groups],
                                    directed=[group_directed(g) for _, g in groups],
                                    seen_by=[len({e.camera for e in g}) for _, g in groups]))
-        path = artifacts / f"top_view_{f:06d}.png"
+        path = artifacts / f"{prefix}top_view_{f:06d}.png"
         cv2.imwrite(str(path), cv2.cvtColor(panel_grid(panels), cv2.COLOR_RGB2BGR))
         paths.append(path)
     return paths

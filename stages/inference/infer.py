@@ -19,8 +19,10 @@ run whose artifacts to use (default: the newest finished one; see ``stages.infer
 
 Writes ``DIR/labels.jsonl`` (WORD-format predictions with real detector scores; image paths relative to
 the dataset root, or to the images' common folder) and, per image, a Fig. 5-style overlay
-``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``) and, with footprints, per frame of two or
-more overlaid images a top view of their cameras' footprints fused ``DIR/top_views/frame_<id>.png`` (loose images
+``DIR/overlays/<image>.png`` (for a dataset only with ``--overlays N``) and, with footprints, each frame's fused
+footprints ``DIR/footprints.jsonl`` (the images of one instant estimated and fused together exactly as the bev stage
+does: its prior with the heading table, its fusion radius) and, per frame of two or more images one of which is
+overlaid, the top view of the frame's fused footprints ``DIR/top_views/frame_<id>.png`` (loose images
 are one frame with ``--frame`` and one ``--calibration`` file per image, each naming its camera). Wherever the detector runs it also
 writes ``DIR/detections.jsonl``: every detection down to its score threshold, without relations (the
 operating point cuts them for the relations; average precision needs them all). Score a dataset's
@@ -45,9 +47,12 @@ from deepword.inference.footprints import (
     beside_top_view,
     calibration_camera,
     camera_of,
-    footprints,
+    estimate_frames,
+    load_fuse_radius,
     load_prior,
     read_calibration_file,
+    with_objects_3d,
+    write_frame_footprints,
     write_frame_views,
 )
 from deepword.inference.runtime import (
@@ -149,25 +154,24 @@ def build_method(name: str, dirs: dict[str, Path], root: Path, threads: int, loa
     return baseline_from_params(name, params[name], load_priors(dirs["export"] / PRIORS_FILE))
 
 
-def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, bev=None) -> Path:
-    """The Fig. 5-style overlay; ``bev`` = (camera, estimates, contacts) adds the top view beside it."""
+def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, frame=None) -> Path:
+    """The Fig. 5-style overlay; ``frame`` (its ``deepword.inference.footprints.Frame``) adds the top view of the
+    image's footprints beside it."""
     import cv2
-
 
     path = out_dir / OVERLAY_DIR / (Path(pred.image).with_suffix("").as_posix().replace("/", "__") + ".png")
     path.parent.mkdir(parents=True, exist_ok=True)
     image = draw_relations(rgb, pred)
-    if bev is not None:
-
-        image = beside_top_view(image, *bev)
+    if frame is not None:
+        image = beside_top_view(image, pred.image, frame)
     cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return path
 
 
 def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
-    """Footprints for every prediction with a camera (``--calibration`` or the record's own); returns the
-    predictions and {image: (camera, estimates, contacts)} for the overlays."""
-
+    """Footprints for every prediction with a camera (``--calibration`` or the record's own), frame by frame as the
+    bev stage estimates them (``estimate_frames``: one instant's images together, with the bev stage's prior and
+    fusion radius); returns the predictions with ``objects_3d`` and {frame_id: Frame}."""
 
     calibration, per_image = None, {}
     files = args.calibration or []
@@ -203,16 +207,11 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[li
         prior = load_prior(bev_dir)
     except CalibrationError as exc:
         raise InferError(str(exc)) from None
-    out, views = [], {}
-    for pred in preds:
-        cam = camera_of(pred, per_image.get(pred.image, calibration))
-        if cam is None:
-            out.append(pred)
-            continue
-        pred, estimates, contacts = footprints(pred, cam, prior)
-        out.append(pred)
-        views[pred.image] = (cam, estimates, contacts)
-    return out, views
+    views = [(pred, cam) for pred in preds
+             if (cam := camera_of(pred, per_image.get(pred.image, calibration))) is not None]
+    frames = estimate_frames(views, prior, load_fuse_radius(bev_dir))
+    in_view = {pred.image for pred, _ in views}
+    return [with_objects_3d(p, frames[p.frame_id]) if p.image in in_view else p for p in preds], frames
 
 
 def infer(args) -> list[Record]:
@@ -252,15 +251,21 @@ def infer(args) -> list[Record]:
         why = "the bundle's end-to-end method" if detect else "on the dataset's own boxes"
         print(f"method: {name} ({why})", file=sys.stderr)
     method = build_method(name, dirs, root, args.threads, rgb_of)
-    preds = [method.predict(r) for r in records]
-    preds, views = add_footprints(args, dirs, preds)
+    return write_predictions(args, dirs, [method.predict(r) for r in records], rgb_of, overlays)
+
+
+def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, overlays: int) -> list[Record]:
+    """``labels.jsonl`` with the footprints where there are cameras (``add_footprints``), the first ``overlays``
+    overlays (each with its image's top view), each frame's fused footprints ``footprints.jsonl`` and the top views of
+    frames of several images ``top_views/`` beside the overlays."""
+    preds, frames = add_footprints(args, dirs, preds)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
-        write_overlay(args.out, rgb_of(pred), pred, views.get(pred.image))
-    if views:  # one instant's cameras fused into one top view (the bev stage's fusion), per frame overlaid
-
-        shown = {p.image for p in preds[:overlays]}
-        write_frame_views(args.out, [p for p in preds if p.image in shown], views)
+        frame = frames.get(pred.frame_id)
+        write_overlay(args.out, rgb_of(pred), pred, frame if frame and "objects_3d" in pred.extra else None)
+    if frames:  # each frame's fused footprints, as the bev stage writes them; its top view beside the overlays
+        write_frame_footprints(args.out, frames)
+        write_frame_views(args.out, frames, {p.image for p in preds[:overlays]})
     return preds
 
 

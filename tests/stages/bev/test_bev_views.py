@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from deepword.footprint import footprints_from_contacts
+from deepword.footprint import footprints_from_contacts, fuse_frame
 from deepword.format_3d import Box3D
-from deepword.inference.footprints import calibration_camera, frame_top_view, write_frame_views
+from deepword.inference.footprints import Frame, calibration_camera, frame_top_view, write_frame_views
 from deepword.top_view import CAMERA_RGB, LEGEND_PX, TITLE_PX, TRUE_RGB, top_view
 from stages.data.camera import nominal_camera
 from stages.inference.infer import InferError, add_footprints, parser
@@ -36,6 +36,13 @@ def _frame_views():
     return v, [r_left, r_front], views
 
 
+def _frame(recs, views) -> Frame:
+    """The frame of ``recs`` as ``deepword infer`` holds it: their cameras, the fused estimates, the contacts."""
+    return Frame(0, [(r, views[r.image][0]) for r in recs],
+                 fuse_frame([e for r in recs for e in views[r.image][1]], 1.5, PRIOR),
+                 {r.image: (r.boxes[r.class_ids == 1], views[r.image][2], np.ones(2, bool)) for r in recs})
+
+
 def test_a_panel_has_truth_the_cameras_colours_and_a_legend():
     v, _, views = _frame_views()
     (cam, estimates, contacts) = views["images/left/000000.png"]
@@ -48,12 +55,16 @@ def test_a_panel_has_truth_the_cameras_colours_and_a_legend():
 
 def test_one_instants_cameras_fuse_into_one_top_view(tmp_path):
     v, recs, views = _frame_views()
-    img = frame_top_view(list(views.values()), "frame 0")
+    frame = _frame(recs, views)
+    assert len(frame.fused) == 1 and len(frame.fused[0][1]) == 2   # the two cameras' estimates: one vehicle
+    img = frame_top_view(frame, "frame 0")
     assert _has(img[: TITLE_PX + 420], CAMERA_RGB["left"])   # the left camera's side estimate leads the fused vehicle
-    paths = write_frame_views(tmp_path, recs, views)
+    paths = write_frame_views(tmp_path, {0: frame})
     assert [p.name for p in paths] == ["frame_000000.png"] and paths[0].is_file()
-    # a frame seen by one image only gets no fused view (its overlay carries its top view)
-    assert write_frame_views(tmp_path / "one", recs[:1], views) == []
+    # a frame seen by one image only gets no fused view (its overlay carries its top view), nor one none of whose
+    # images is overlaid
+    assert write_frame_views(tmp_path / "one", {0: _frame(recs[:1], views)}) == []
+    assert write_frame_views(tmp_path / "none", {0: frame}, shown={"images/other.png"}) == []
 
 
 def test_calibration_files_name_their_cameras_and_must_be_one_per_image(tmp_path):

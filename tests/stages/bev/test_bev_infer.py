@@ -1,0 +1,109 @@
+"""One code path for a frame's footprints: the bev stage run on rendered SynWORD frames and ``deepword infer`` on the
+same frames' predictions give the same fused footprints (the bev stage's prior, heading table included, and fusion
+radius), infer writes the frames' top views beside the overlays; with the held-out domain among its inputs the bev
+stage scores it too, under ``bev.shift.*``."""
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import pytest
+from omegaconf import OmegaConf
+
+from deepword.format_3d import record_objects_3d
+from deepword.word_format import load_image, read_records, write_dataset_index, write_records
+from stages.bev.stage import run
+from stages.data.synword import generate
+from stages.inference.infer import parser, write_predictions
+from tests.stage_inputs import stage_inputs
+
+CONF = Path(__file__).resolve().parents[3] / "conf"
+METHOD = "deepword"
+
+
+def _dataset(root: Path, frames: int, seed: int, test_from: int) -> list:
+    """A data-stage-like directory of rendered frames; frames ``test_from`` on are the test split."""
+    cfg = {**OmegaConf.to_container(OmegaConf.load(CONF / "data" / "synword.yaml"), resolve=True),
+           "frames": frames, "workers": 1}
+    records = generate(cfg, seed=seed, out_dir=root, workers=1, progress=False)
+    write_records(root / "labels.jsonl", records)
+    records = read_records(root / "labels.jsonl")
+    test = [r.image for r in records if r.frame_id >= test_from]
+    write_dataset_index(root, root, {"train": [r.image for r in records if r.frame_id < test_from], "val": [],
+                                     "test": test, "hard": test[::2]})
+    return [r for r in records if r.frame_id >= test_from]
+
+
+def _predictions(path: Path, records: list) -> None:
+    """The test records as a relation method's predictions (their own relations and roles, the role head's way)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_records(path, records)
+
+
+@pytest.fixture(scope="module")
+def bev_run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("bev_infer")
+    test = _dataset(base / "data", frames=5, seed=3, test_from=3)
+    heldout = _dataset(base / "shift_data", frames=2, seed=11, test_from=0)
+    _predictions(base / "evaluate" / "predictions" / f"gt_{METHOD}.jsonl", test)
+    _predictions(base / "evaluate" / "shift" / "predictions" / f"gt_{METHOD}.jsonl", heldout)
+    bcfg = {**OmegaConf.to_container(OmegaConf.load(CONF / "bev" / "default.yaml")), "methods": [METHOD],
+            "box_sources": ["gt"], "figures": 1}
+    out = base / "bev"
+    out.mkdir()
+    dirs = {name: base / name for name in ("data", "evaluate", "shift_data")}
+    metrics = run(OmegaConf.create({"bev": bcfg, "seed": 0}), stage_inputs("bev", dirs), out)
+    return base, test, heldout, out, metrics
+
+
+def test_infer_gives_the_bev_stages_frame_footprints_and_draws_the_frames_top_view(bev_run):
+    base, test, _, bev, _ = bev_run
+    prior = json.loads((bev / "footprint_prior.json").read_text())
+    assert prior["heading"], "the prior infer reads holds the heading table fitted on train"
+    out = base / "infer"
+    args = parser().parse_args(["--dataset", str(base / "data"), "--out", str(out), "--bev", str(bev)])
+    out.mkdir()
+    preds = write_predictions(args, {}, test, lambda r: load_image(base / "data", r), overlays=len(test))
+
+    by_stage = (bev / "footprints" / f"gt_{METHOD}.jsonl").read_text().splitlines()
+    by_infer = (out / "footprints.jsonl").read_text().splitlines()
+    assert len(by_infer) == len({r.frame_id for r in test}) == 2
+    assert by_infer == by_stage   # the same footprints, evidence, cameras, confidences and headings' sources
+    assert any(f["heading_from"] == "roles" for line in by_infer for f in json.loads(line)["footprints"])
+    assert any(len(f["seen_by"]) > 1 for line in by_infer for f in json.loads(line)["footprints"])
+
+    # each prediction carries its vehicles' fused footprints: the frame's rows, keyed by the image's box ids
+    rows = {(f["center"][0], f["center"][1], f["yaw"]) for line in by_infer for f in json.loads(line)["footprints"]}
+    for pred in preds:
+        vehicles = [v for v in pred.extra["objects_3d"].values() if "center" in v]
+        assert vehicles and all((v["center"][0], v["center"][1], v["yaw"]) in rows for v in vehicles)
+        assert pred.camera in {c for v in vehicles for c in v["seen_by"]}
+
+    # the frames' top views beside the overlays; each overlay with its image's top view to its right
+    views = sorted(p.name for p in (out / "top_views").iterdir())
+    assert views == [f"frame_{f:06d}.png" for f in sorted({r.frame_id for r in test})]
+    overlay = cv2.imread(str(out / "overlays" / (Path(test[0].image).with_suffix("").as_posix().replace("/", "__")
+                                                  + ".png")))
+    assert overlay.shape[0] == test[0].height and overlay.shape[1] > test[0].width + 100
+
+
+def test_the_bev_stage_scores_the_held_out_domain_beside_in_domain(bev_run):
+    base, test, heldout, bev, metrics = bev_run
+    for root in ("bev", "bev.shift"):
+        assert 0 <= metrics[f"{root}.gt.{METHOD}.all.ap"] <= 100
+        assert f"{root}.gt.{METHOD}.center_err_m" in metrics and f"{root}.gt.box_bottom.all.ap" in metrics
+
+    def within_range(records) -> int:
+        seen = {(r.frame_id, round(b.x, 2), round(b.y, 2)) for r in records
+                for b in record_objects_3d(r, "test")[0].values() if math.hypot(b.x, b.y) <= 10}
+        return len(seen)
+
+    assert metrics[f"bev.gt.{METHOD}.all.vehicles"] == within_range(test)
+    assert metrics[f"bev.shift.gt.{METHOD}.all.vehicles"] == within_range(heldout)
+    lines = (bev / "shift" / "footprints" / f"gt_{METHOD}.jsonl").read_text().splitlines()
+    assert [json.loads(line)["frame_id"] for line in lines] == sorted({r.frame_id for r in heldout})
+    report = (bev / "bev_report.md").read_text()
+    assert "# Held-out domain" in report and "held-out gt boxes: detection scores" in report
+    assert json.loads((bev / "bev.json").read_text())["shift"]["frames"] == 2
+    assert sorted(p.name for p in (bev / "artifacts").glob("shift_top_view_*.png"))
