@@ -18,6 +18,12 @@ harmless while weak wheels are dropped and harmful once they are kept, so each c
 depends on the other's), on pair_f1 as ``deepword.metrics`` scores it: the evaluate stage's own definition, on
 the val split, never the test split. Among equally good points the one that keeps the most wins (the lowest
 thresholds, then the lowest minimum sides: more recall for the same F1).
+
+On a small val split (a new camera's first few dozen labelled images) the best single point is mostly noise:
+thousands of points are tried on a few hundred pairs, and the winner is the one whose few lucky images went
+its way. ``smoothing`` (grid steps) chooses instead the point whose neighbourhood scores best on average: the
+mean criterion over the points with the same minimum sides and every class's threshold within that many
+grid steps, the centre of a good plateau rather than its highest needle (``choose_point``).
 """
 
 from __future__ import annotations
@@ -33,8 +39,8 @@ from deepword.metrics import Counts, score_image, score_records
 from deepword.relation_graph import subgraph
 from deepword.word_format import Record
 
-__all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "end_to_end_score",
-           "keep_at", "search_operating_point"]
+__all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "choose_point",
+           "end_to_end_score", "keep_at", "search_operating_point"]
 
 # The one selection criterion of the operating point: the §7 metric (``deepword.metrics``, percent) of the end-to-end
 # method on the val split that the search maximises; the export stage's metric keys, ``deepword tune``'s bundle
@@ -67,9 +73,9 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
                            predict: Callable[[list[Record]], list[Record]], num_classes: int = 2,
                            grid: Sequence[float] = DEFAULT_GRID,
                            min_side_grid: Sequence[Sequence[float]] | None = None, min_box_px: float = 0.0,
-                           match_iou: float = 0.5) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
-    """(the operating point maximising the end-to-end ``CRITERION``, every evaluated {point: its value}): every per-class
-    threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
+                           match_iou: float = 0.5, smoothing: int = 0) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
+    """(the operating point ``choose_point`` takes, every evaluated {point: its end-to-end ``CRITERION``}): every
+    per-class threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
     minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image."""
     grid = sorted({float(t) for t in grid})
     if not grid:
@@ -82,10 +88,35 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
               for m in itertools.product(*sides)]
     seen = dict(zip(points, SubsetScores(truths, detections, predict, min_box_px, match_iou).scores(points),
                     strict=True))
-    best = max(seen.values())
-    chosen = min((p for p, f1 in seen.items() if f1 == best),
-                 key=lambda p: (sum(p.thresholds), p.thresholds, sum(p.min_sides), p.min_sides))
-    return chosen, seen
+    return choose_point(seen, smoothing), seen
+
+
+def neighbourhood_means(seen: dict[OperatingPoint, float], radius: int) -> dict[OperatingPoint, float]:
+    """Each point's mean value over the points of ``seen`` with its minimum sides and every threshold within
+    ``radius`` steps of the threshold grid (``seen``'s thresholds, sorted) of its own."""
+    grid = {t: i for i, t in enumerate(sorted({t for p in seen for t in p.thresholds}))}
+    by_sides: dict[tuple, list[OperatingPoint]] = {}
+    for p in seen:
+        by_sides.setdefault(p.min_sides, []).append(p)
+    out = {}
+    for sides, points in by_sides.items():
+        steps = np.array([[grid[t] for t in p.thresholds] for p in points])
+        values = np.array([seen[p] for p in points])
+        near = (np.abs(steps[:, None, :] - steps[None, :, :]) <= radius).all(axis=2)
+        out |= dict(zip(points, (near @ values) / near.sum(axis=1), strict=True))
+    return out
+
+
+def choose_point(seen: dict[OperatingPoint, float], smoothing: int = 0) -> OperatingPoint:
+    """The point of ``seen`` with the best value (``smoothing`` > 0: the best mean over its neighbourhood of that
+    many threshold grid steps, ``neighbourhood_means``); among equals the one that keeps the most (lowest
+    thresholds, then lowest minimum sides)."""
+    if smoothing < 0:
+        raise ValueError(f"operating point: smoothing must be >= 0 grid steps, got {smoothing}")
+    score = seen if smoothing == 0 else neighbourhood_means(seen, smoothing)
+    best = max(score.values())
+    return min((p for p, value in score.items() if value >= best - 1e-9),
+               key=lambda p: (sum(p.thresholds), p.thresholds, sum(p.min_sides), p.min_sides))
 
 
 class SubsetScores:

@@ -298,7 +298,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     match_iou = float(op_cfg.match_iou)
     method = relation if fallback is None else batch_with_fallback(relation, fallback)
     chosen, seen = search_operating_point(val, detections, method, len(classes), list(op_cfg.grid), side_grid,
-                                          min_box_px, match_iou)
+                                          min_box_px, match_iou, int(op_cfg.get("smoothing", 0)))
     floor = OperatingPoint(tuple([float(det_cfg["score_threshold"])] * len(classes)), tuple([0.0] * len(classes)))
     f1_floor = seen.get(floor)
     if f1_floor is None:
@@ -370,7 +370,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         search = {"grid": [float(t) for t in ex.operating_point.grid],
                   "min_side_grid": {c: [float(v) for v in g]
                                     for c, g in (ex.operating_point.get("min_side_grid") or {}).items()},
-                  "min_box_px": float(ex.min_box_px), "match_iou": float(ex.operating_point.match_iou)}
+                  "min_box_px": float(ex.min_box_px), "match_iou": float(ex.operating_point.match_iou),
+                  "smoothing": int(ex.operating_point.get("smoothing", 0))}
         write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search)
 
     metrics = {

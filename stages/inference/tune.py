@@ -127,6 +127,9 @@ def tune(args) -> dict:
     searched = bundle["detector"].get("operating_point_search") or {}
     min_box_px = float(searched.get("min_box_px", 8.0)) if args.min_box_px is None else args.min_box_px
     match_iou = float(searched.get("match_iou", 0.5)) if args.match_iou is None else args.match_iou
+    smoothing = int(searched.get("smoothing", 0)) if args.smoothing is None else args.smoothing
+    if smoothing < 0:
+        raise TuneError(f"--smoothing {smoothing}: expected a number of grid steps >= 0")
 
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     pixels = {}
@@ -143,7 +146,7 @@ def tune(args) -> dict:
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())
     print(f"searching {points} operating points by the {CRITERION} of {name} ...", file=sys.stderr)
     chosen, seen = search_operating_point(truths, detections, method, len(classes), thresholds,
-                                          [sides[c] for c in classes], min_box_px, match_iou)
+                                          [sides[c] for c in classes], min_box_px, match_iou, smoothing)
     progress.close()
     shipped_thresholds, shipped_sides = bundle_operating_point(bundle["detector"])
     before = OperatingPoint(shipped_thresholds or (detector.score_threshold,) * len(classes), shipped_sides)
@@ -161,7 +164,7 @@ def tune(args) -> dict:
              "from": str(Path(export).resolve()), CRITERION: seen[chosen], f"{CRITERION}_at_bundle_point": f1_before,
              "bundle_point": {"operating_point": dict(zip(classes, before.thresholds, strict=True)),
                               "min_side": dict(zip(classes, before.min_sides, strict=True))},
-             "min_box_px": min_box_px, "match_iou": match_iou, "points": len(seen)}
+             "min_box_px": min_box_px, "match_iou": match_iou, "smoothing": smoothing, "points": len(seen)}
     bundle["tuned"] = tuned
     (args.out / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
     images = f"{len(truths)} labelled images" + (f" (split {args.split})" if args.split else "")
@@ -186,6 +189,10 @@ def parser() -> argparse.ArgumentParser:
                    help="evaluated wheels' minimum shorter side (default: the export stage's, else 8)")
     p.add_argument("--match-iou", type=float, default=None,
                    help="IoU for matching detections to labelled boxes (default: the export stage's, else 0.5)")
+    p.add_argument("--smoothing", type=int, default=None,
+                   help="choose the point whose neighbourhood of this many threshold grid steps scores best on "
+                        "average, not the single best point: steadier on a few dozen images (default: the export "
+                        "stage's)")
     p.add_argument("--run", help="MLflow run id of the pipeline run whose bundle to tune (default: newest)")
     p.add_argument("--export", type=Path, help="an export stage output directory (instead of --run)")
     p.add_argument("--tracking-uri", help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI or sqlite:///mlflow.db)")

@@ -8,6 +8,7 @@ from deepword.geometry import containment
 from deepword.operating_point.search import (
     OperatingPoint,
     SubsetRelation,
+    choose_point,
     end_to_end_score,
     keep_at,
     search_operating_point,
@@ -143,3 +144,29 @@ def test_the_search_predicts_and_scores_each_distinct_subset_once_and_agrees_wit
     assert seen == pytest.approx({p: end_to_end_score(truths, detections, p, tightest_vehicle, 0.0, 0.5)
                                   for p in seen})
     assert seen[chosen] == max(seen.values()) == 100.0
+
+
+def test_smoothing_chooses_the_centre_of_a_plateau_over_a_lone_peak():
+    """A lone needle at (0.1, 0.1) beats a broad plateau point by point; averaged over each point's neighbours
+    within one grid step the plateau's centre wins."""
+    grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    seen = {OperatingPoint((a, b), (0.0, 0.0)): 50.0 for a in grid for b in grid}
+    seen[OperatingPoint((0.1, 0.1), (0.0, 0.0))] = 90.0
+    for a in (0.3, 0.4, 0.5):
+        for b in (0.3, 0.4, 0.5):
+            seen[OperatingPoint((a, b), (0.0, 0.0))] = 80.0
+    seen[OperatingPoint((0.4, 0.4), (0.0, 0.0))] = 82.0
+    assert choose_point(seen) == OperatingPoint((0.1, 0.1), (0.0, 0.0))
+    assert choose_point(seen, smoothing=1) == OperatingPoint((0.4, 0.4), (0.0, 0.0))
+    # neighbours share the minimum sides: a plateau at other sides does not lift this one
+    other = {OperatingPoint(p.thresholds, (8.0, 0.0)): 0.0 for p in seen}
+    assert choose_point(seen | other, smoothing=1) == OperatingPoint((0.4, 0.4), (0.0, 0.0))
+    with pytest.raises(ValueError, match="smoothing must be >= 0"):
+        choose_point(seen, smoothing=-1)
+
+
+def test_search_passes_smoothing_to_the_choice():
+    grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    chosen, seen = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
+    smoothed, _ = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid, smoothing=1)
+    assert chosen == choose_point(seen) and smoothed == choose_point(seen, 1)

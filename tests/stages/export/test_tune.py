@@ -26,6 +26,7 @@ def test_on_the_export_stages_val_split_tune_chooses_the_export_stages_point(ups
     assert tuned["detector"]["min_side"] == {"vehicle": 0.0, **shipped["min_side"]}
     entry = tuned["tuned"]
     assert entry["method"] == "deepword_then_logic" and entry["images"] == 1 and entry["points"] == 18
+    assert entry["smoothing"] == shipped["operating_point_search"]["smoothing"] == 0
     assert entry["pair_f1"] == pytest.approx(metrics["export.detector.val_pair_f1"], abs=1e-9)
     assert entry["pair_f1_at_bundle_point"] == pytest.approx(entry["pair_f1"], abs=1e-9)
     assert (tmp_path / "tuned" / "artifacts" / "operating_point.png").is_file()
@@ -52,6 +53,7 @@ def test_the_tuned_bundle_is_what_infer_keeps_detections_at(upstream, exported, 
     (["--split", "val", "--min-side", "bus=3"], "--min-side: expected CLASS=PX"),
     (["--split", "val", "--grid", "0.2,x"], "--grid: '0.2,x' is not a comma-separated list"),
     (["--split", "nope"], "unknown split 'nope'"),
+    (["--split", "val", "--smoothing", "-1"], "--smoothing -1: expected a number of grid steps >= 0"),
 ])
 def test_bad_options_are_one_line_errors(upstream, exported, tmp_path, capsys, extra, message):
     assert tune(["--dataset", str(upstream["data"]), "--export", str(exported[0]), "--out", str(tmp_path / "t"),
