@@ -99,7 +99,7 @@ def neighbourhood_means(seen: dict[OperatingPoint, float], radius: int) -> dict[
     for p in seen:
         by_sides.setdefault(p.min_sides, []).append(p)
     out = {}
-    for sides, points in by_sides.items():
+    for points in by_sides.values():
         steps = np.array([[grid[t] for t in p.thresholds] for p in points])
         values = np.array([seen[p] for p in points])
         near = (np.abs(steps[:, None, :] - steps[None, :, :]) <= radius).all(axis=2)
