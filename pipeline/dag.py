@@ -14,7 +14,8 @@ from pipeline.checks import parse_checks
 from pipeline.errors import PipelineError
 from pipeline.outputs import check_declared
 
-STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve", "outputs"}
+STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve", "outputs",
+                "estimate"}
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,9 @@ class StageSpec:
     # ``module:function`` called at plan time, before any stage runs, to resolve what the declared config only
     # names (pipeline.keys.resolve_extras): e.g. a file to start from, whose content then joins the key.
     resolve: str | None = None
+    # ``module:function`` called at plan time for a stage that will run (a miss), never for a hit: its expected
+    # seconds on this host (pipeline.estimate); printed and logged, never part of the key
+    estimate: str | None = None
     # {name: path relative to the stage's output directory, may hold {field} placeholders}: the files downstream
     # stages read (pipeline.outputs)
     outputs: tuple[tuple[str, str], ...] = ()
@@ -64,6 +68,10 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
     resolve = node.get("resolve")
     if resolve is not None and (not isinstance(resolve, str) or resolve.count(":") != 1 or not all(resolve.split(":"))):
         raise PipelineError(f"pipeline.stages.{name}.resolve: expected 'package.module:function', got {resolve!r}")
+    estimate = node.get("estimate")
+    if estimate is not None and (not isinstance(estimate, str) or estimate.count(":") != 1
+                                 or not all(estimate.split(":"))):
+        raise PipelineError(f"pipeline.stages.{name}.estimate: expected 'package.module:function', got {estimate!r}")
     config = _str_list(name, "config", node.get("config"))
     inputs = _str_list(name, "inputs", node.get("inputs"))
     optional = _str_list(name, "optional", node.get("optional"))
@@ -99,6 +107,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         dataset=None if node.get("dataset") is None else str(node.get("dataset")),
         every_rank=every_rank,
         resolve=resolve,
+        estimate=estimate,
         outputs=tuple(outputs.items()),
     )
 

@@ -25,6 +25,7 @@ from pipeline.checks import check_values
 from pipeline.codeversion import persistent_imports
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
+from pipeline.estimate import estimate_params, estimate_stage, format_estimates, time_budget
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
 from pipeline.outputs import StageInputs, missing_outputs
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
@@ -306,9 +307,15 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
         check_server(settings["uri"])
     if in_process_tracking is None:  # decided now: a resolve hook may import MLflow while planning
         in_process_tracking = "mlflow" in sys.modules
+    budget = time_budget(cfg)
     cache = Cache(settings["cache_dir"])
     plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"], _context(settings))
     _say(format_plan(plans, str(cache.root), left_out))
+    # only the stages that will run: a hit never calls its hook (an all-hit re-run imports no stage code)
+    estimates = [e for p in plans if not p.hit
+                 if (e := estimate_stage(specs[p.name], cfg, _context(settings))) is not None]
+    if estimates:
+        _say(format_estimates(estimates, budget, str(cfg.get("profile_name", ""))))
     launch.start({p.name: p.key for p in plans})
     if rank.world_size > 1:
         _say(f"{rank.described} (launch {launch.launch_id}): this rank plans, tracks and writes the cache")
@@ -332,7 +339,7 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
         return _use_recorded(recorded, specs, plans, cache, settings, run_dir, left_out, t0)
     tracker = tracker or open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch, estimates)
     finally:
         tracker.close()
 
@@ -402,12 +409,13 @@ def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, r
 
 
 def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0,
-             launch: LaunchFile) -> dict:
+             launch: LaunchFile, estimates=()) -> dict:
     parent_tags = {**record["tags"], DIGEST_TAG: record["digest"]}
     # Every stage child run carries them too: a child row alone says which seed and code made it.
     settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
     parent_id = tracker.create_run(record["name"], parent_tags)
-    tracker.log(parent_id, params=record["params"])
+    # the forecast beside the record, outside its digest: compare estimate.<stage>.seconds with <stage>.seconds
+    tracker.log(parent_id, params={**record["params"], **estimate_params(list(estimates))})
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
     try:
@@ -436,6 +444,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_
         "cache_dir": str(cache.root),
         "stages": results,
         "not_run": left_out,  # stage -> why it was left out
+        "estimates": {e.stage: e.seconds for e in estimates},  # plan-time forecasts (pipeline.estimate)
     }
     write_summary(run_dir, summary)
     _say(summary_table(summary))

@@ -1,0 +1,280 @@
+"""Plan-time estimates of the training stages' time on this host (the engine's ``estimate`` hook, pipeline/estimate.py).
+
+Each probe builds the configured network, times a few real optimisation steps (forward, loss, backward, AdamW) at the
+configured batch size, precision (``trainer.precision``, resolved as the stage resolves it: bf16 where the host runs
+it natively) and threads, on synthetic tensors of the configured input size (the dataset need not exist yet), and
+multiplies the median step by the steps the configured epochs imply, plus a forward pass per validation batch on the
+epochs that validate. The stage's own data loading (decoding and augmenting images, the relation crops) is not in
+the probe. Images per epoch are not known before the data stage: the probes take the configured frames x cameras x
+split share (``data.frames``, ``data.cameras``, ``data.split``), an upper bound, since the generator drops images
+without an owner relation (86 % of the quick profile's train images were kept). Where the data config names no
+frames (``data=word``) there is no estimate.
+
+No stage module imports this one, so it is in no stage's code version: a change here re-runs nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import statistics
+import time
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+PROBE_SECONDS = 1.5   # stop timing steps once this much was spent (after at least MIN_STEPS)
+MIN_STEPS, MAX_STEPS = 2, 8
+# Mean objects (vehicles and wheels) an image of the generator holds: 13.3 over the first 50 quick-profile test
+# images (seed 42). The relation probe's images hold 2 .. 2*13-2 objects, 13 on average.
+MEAN_OBJECTS = 13
+
+
+def _plain(node):
+    return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
+
+
+def split_images(cfg: DictConfig, split: str) -> int | None:
+    """frames x cameras x the split's share, from the data config; None where it names no frames."""
+    frames = OmegaConf.select(cfg, "data.frames", default=None)
+    cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
+    share = OmegaConf.select(cfg, f"data.split.{split}", default=None)
+    n_cameras = sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
+    if frames is None or share is None or n_cameras == 0:
+        return None
+    return int(round(int(frames) * float(share))) * n_cameras
+
+
+def limited_batches(n_images: int, batch_size: int, limit, drop_last: bool = False) -> int:
+    """Batches of an epoch under Lightning's ``limit_*_batches`` (a share when a float, a count when an int)."""
+    batches = n_images // batch_size if drop_last and n_images > batch_size else math.ceil(n_images / batch_size)
+    if limit is None:
+        return batches
+    if isinstance(limit, float) and limit <= 1.0:
+        return max(1, int(batches * limit)) if batches else 0
+    return min(batches, int(limit))
+
+
+@contextlib.contextmanager
+def _threads(n: int):
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(n)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def timed_steps(step, sync=lambda: None) -> float:
+    """Median seconds of ``step()``: one warm-up (oneDNN creates its primitives), then MIN_STEPS..MAX_STEPS timed,
+    stopping once PROBE_SECONDS were spent."""
+    step()
+    sync()
+    times, spent = [], 0.0
+    while len(times) < MAX_STEPS and (len(times) < MIN_STEPS or spent < PROBE_SECONDS):
+        start = time.perf_counter()
+        step()
+        sync()
+        times.append(time.perf_counter() - start)
+        spent += times[-1]
+    return statistics.median(times)
+
+
+def _device(accelerator: str):
+    import torch
+
+    from stages.training.precision import trains_on_gpu
+
+    if trains_on_gpu(accelerator):
+        return torch.device("cuda"), torch.cuda.synchronize
+    return torch.device("cpu"), (lambda: None)
+
+
+def _replicas(trainer: dict) -> int:
+    devices = trainer.get("devices", 1)
+    per_node = devices if isinstance(devices, int) and devices > 0 else 1
+    return per_node * int(trainer.get("num_nodes", 1) or 1)
+
+
+def _precision_name(precision: str) -> str:
+    from stages.training.precision import BF16
+
+    return "bf16" if precision == BF16 else "fp32" if precision in ("32-true", "32") else precision
+
+
+# -- detector ------------------------------------------------------------------------------------------------
+
+
+def detector(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the detector's training: epochs x train steps x the probed step, plus its validation passes."""
+    import torch
+
+    from stages.detector.losses import detector_loss
+    from stages.detector.model import DOWN_RATIO, build_centernet, model_config
+    from stages.training.loader_workers import usable_cores
+    from stages.training.precision import BF16, resolve_precision
+
+    train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
+    if train_images is None:
+        return None
+    det = _plain(cfg.detector)
+    trainer = _plain(cfg.trainer)
+    batch = int(det["batch_size"])
+    precision = resolve_precision(trainer.get("precision", "32-true"), trainer.get("accelerator", "auto"))
+    bf16 = precision == BF16
+    device, sync = _device(trainer.get("accelerator", "auto"))
+    channels_last = bool(det.get("channels_last")) and bf16
+    fmt = torch.channels_last if channels_last else torch.contiguous_format
+    crop = det["augment"].get("crop")
+    width, height = (int(crop[0]), int(crop[1])) if crop else (int(det["input_width"]), int(det["input_height"]))
+    threads = int(trainer.get("threads") or usable_cores())
+    with _threads(threads):
+        torch.manual_seed(0)
+        mcfg = model_config(det)
+        net = build_centernet(mcfg).to(device).to(memory_format=fmt).train()
+        opt = torch.optim.AdamW(net.parameters(), lr=1e-4, fused=True)
+        targets = _detector_targets(det, batch, width, height, device)
+        images = torch.randn(batch, 3, height, width, device=device).contiguous(memory_format=fmt)
+        autocast = (lambda: torch.autocast(device.type, dtype=torch.bfloat16)) if bf16 else contextlib.nullcontext
+
+        def step():
+            with autocast():
+                loss, _ = detector_loss(net(images), targets, mcfg["regression"], DOWN_RATIO, det["loss"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+
+        step_s = timed_steps(step, sync)
+        net.eval()
+        val_input = torch.randn(batch, 3, int(det["input_height"]), int(det["input_width"]),
+                                device=device).contiguous(memory_format=fmt)
+
+        def forward():
+            with torch.no_grad(), autocast():
+                net(val_input)
+
+        forward_s = timed_steps(forward, sync)
+    replicas = _replicas(trainer)
+    epochs = int(det["epochs"])
+    steps = limited_batches(math.ceil(train_images / replicas), batch, det.get("limit_train_batches"), drop_last=True)
+    val_batches = limited_batches(math.ceil((val_images or 0) / replicas), batch, det.get("limit_val_batches"))
+    val_epochs = epochs // max(1, int(det.get("val_every_n_epochs", 1)))
+    epoch_s = steps * step_s
+    seconds = epochs * epoch_s + val_epochs * val_batches * forward_s
+    return {"seconds": seconds,
+            "note": f"{epochs} epochs x {steps} steps x {1000 * step_s:.0f} ms ({_precision_name(precision)}, batch "
+                    f"{batch} at {width}x{height}, {threads} threads{', ' + device.type if device.type != 'cpu' else ''})"
+                    f" + {val_epochs} validations; ~{epoch_s:.0f} s an epoch",
+            "hint": f"~{epoch_s:.0f} s an epoch: fewer epochs (detector.epochs=N, now {epochs}), a smaller profile "
+                    "(profile=smoke), or a GPU (trainer=gpu)"}
+
+
+def _detector_targets(det: dict, batch: int, width: int, height: int, device) -> dict:
+    import torch
+
+    from stages.detector.model import CLASS_NAMES, DOWN_RATIO
+    from stages.detector.targets import centernet_targets, ttfnet_box_targets
+
+    rng = np.random.default_rng(0)
+    items, n = [], MEAN_OBJECTS
+    for _ in range(batch):
+        x1, y1 = rng.uniform(0, width - 40, n), rng.uniform(0, height - 30, n)
+        boxes = np.column_stack([x1, y1, x1 + rng.uniform(8, 40, n), y1 + rng.uniform(8, 30, n)])
+        item = centernet_targets(boxes / DOWN_RATIO, rng.integers(0, len(CLASS_NAMES), n), len(CLASS_NAMES),
+                                 width // DOWN_RATIO, height // DOWN_RATIO, n, det["min_overlap"])
+        if det.get("regression", "centernet") == "ttfnet":
+            item |= ttfnet_box_targets(boxes, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
+        items.append(item)
+    return {k: torch.from_numpy(np.stack([it[k] for it in items])).to(device) for k in items[0]}
+
+
+# -- relation -------------------------------------------------------------------------------------------------
+
+
+def relation(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the relation stage's training: ensemble members x epochs x train steps x the probed step, plus a
+    validation pass an epoch. Early stopping (``relation.train.patience``) may end it sooner: an upper bound."""
+    import torch
+
+    from deepword.relation_graph import InputConfig
+    from stages.relation.lightning import RelationModule, collate_graphs
+    from stages.relation.model import ModelConfig
+    from stages.training.precision import BF16, resolve_precision
+
+    train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
+    if train_images is None:
+        return None
+    rel, tr = cfg.relation, _plain(cfg.trainer)
+    train = _plain(rel.train)
+    limit = train.get("limit_train_images")
+    train_images = min(train_images, int(limit)) if limit else train_images
+    copies = int((train.get("detection_noise") or {}).get("copies", 0))
+    train_images *= 1 + copies  # each image again as a detector might see it (stages/relation/simulate.py)
+    limit_val = train.get("limit_val_images")
+    val_images = min(val_images or 0, int(limit_val)) if limit_val else (val_images or 0)
+    batch = int(train["batch_size"])
+    precision = resolve_precision(tr.get("precision", "32-true"), tr.get("accelerator", "auto"))
+    device, sync = _device(tr.get("accelerator", "auto"))
+    in_cfg, model_cfg = InputConfig.from_cfg(rel), ModelConfig.from_cfg(rel)
+    threads = int(train.get("threads") or 1)
+    with _threads(threads):
+        torch.manual_seed(0)
+        module = RelationModule(model=dict(model_cfg.__dict__), loss=_plain(rel.loss), decode=_plain(rel.decode),
+                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=precision == BF16)
+        module = module.to(device).train()
+        opt = torch.optim.AdamW(module.parameters(), lr=1e-3)
+        graphs = {k: v.to(device) for k, v in collate_graphs(_relation_items(batch, in_cfg.input_size)).items()}
+
+        def step():
+            loss = module._loss(module(graphs), graphs)["loss"]
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+
+        step_s = timed_steps(step, sync)
+        module.eval()
+
+        def forward():
+            with torch.no_grad():
+                module(graphs)
+
+        forward_s = timed_steps(forward, sync)
+    members, epochs = int(rel.get("ensemble", 1)), int(train["epochs"])
+    replicas = _replicas(tr)
+    steps = math.ceil(math.ceil(train_images / replicas) / batch)
+    val_batches = math.ceil(val_images / batch)
+    epoch_s = steps * step_s + val_batches * forward_s
+    seconds = members * epochs * epoch_s
+    return {"seconds": seconds,
+            "note": f"{members} network(s) x {epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + {val_batches} "
+                    f"val batches) ({_precision_name(precision)} backbone, batch {batch}, {threads} threads); at most, "
+                    "early stopping may end it sooner",
+            "hint": f"~{epoch_s:.0f} s an epoch a network: fewer epochs (relation.train.epochs=N, now {epochs}) or "
+                    f"networks (relation.ensemble, now {members}), or a GPU (trainer=gpu)"}
+
+
+def _relation_items(batch: int, size: int) -> list[dict]:
+    import torch
+
+    rng = np.random.default_rng(0)
+    items = []
+    for n in rng.integers(2, 2 * MEAN_OBJECTS - 1, batch):
+        n = int(n)
+        classes = (np.arange(n) % 3 != 0).astype(np.int64)  # a third vehicles, the rest wheels
+        cand = classes[:, None] + classes[None, :] >= 1
+        np.fill_diagonal(cand, False)
+        adj = np.where(cand, rng.random((n, n)), 0).astype(np.float32)
+        np.fill_diagonal(adj, 1.0)
+        owner = np.zeros((n, n), np.uint8)
+        wheels, vehicles = np.flatnonzero(classes == 1), np.flatnonzero(classes == 0)
+        if len(vehicles):
+            owner[wheels, vehicles[wheels % len(vehicles)]] = 1
+        items.append({"crops": torch.from_numpy(rng.integers(0, 256, (n, 3, size, size), dtype=np.uint8)),
+                      "coords": torch.from_numpy(rng.random((n, 4), dtype=np.float32)),
+                      "classes": torch.from_numpy(classes), "valid": torch.ones(n, dtype=torch.bool),
+                      "adj": torch.from_numpy(adj), "cand": torch.from_numpy(cand),
+                      "owner": torch.from_numpy(owner), "couple": torch.zeros((n, n), dtype=torch.uint8),
+                      "role": torch.full((n,), -1, dtype=torch.long)})
+    return items
