@@ -1,0 +1,40 @@
+"""The training stages' plan-time probes (stages/training/estimate.py) on the smoke profile's sizes."""
+
+import math
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from stages.training import estimate
+from tests.pipeline.test_runmode import CONF
+
+
+def _cfg(*overrides):
+    with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+        return compose(config_name="config", overrides=["profile=smoke", "trainer.threads=1", *overrides])
+
+
+@pytest.mark.parametrize("stage", ["detector", "relation"])
+def test_a_real_probe_times_steps_and_says_how(stage):
+    out = getattr(estimate, stage)(_cfg())
+    assert math.isfinite(out["seconds"]) and out["seconds"] > 0
+    assert "epochs" in out["note"] and "threads" in out["note"] and "epochs" in out["hint"]
+
+
+def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
+    monkeypatch.setattr(estimate, "timed_steps", lambda step, sync=None: 0.5)  # every step and forward: 0.5 s
+    cfg = _cfg("detector.epochs=4", "detector.val_every_n_epochs=2", "detector.limit_train_batches=1.0",
+               "detector.limit_val_batches=1.0", "detector.batch_size=4")
+    train = estimate.split_images(cfg, "train")
+    val = estimate.split_images(cfg, "val")
+    assert train == round(8 * 0.7) * 4 and val == round(8 * 0.1) * 4   # smoke: 8 frames x 4 cameras
+    assert estimate.detector(cfg)["seconds"] == pytest.approx(4 * (train // 4) * 0.5 + 2 * math.ceil(val / 4) * 0.5)
+    rel = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
+               "relation.train.limit_val_images=null", "relation.train.batch_size=8")
+    steps = math.ceil(train * 2 / 8)  # each train image twice: once as annotated, once as a detector might see it
+    assert estimate.relation(rel)["seconds"] == pytest.approx(3 * 2 * (steps + math.ceil(val / 8)) * 0.5)
+
+
+def test_no_frames_no_estimate():
+    assert estimate.split_images(_cfg("data=word", "data.root=/nonexistent"), "train") is None
+    assert estimate.limited_batches(100, 8, 3) == 3 and estimate.limited_batches(100, 8, 0.5) == 6
