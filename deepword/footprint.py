@@ -272,17 +272,39 @@ def silhouette_cost(pred: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return (w * d * d).sum(axis=1)
 
 
-def _size(prior: FootprintPrior) -> tuple[float, float, float]:
-    return prior.length, prior.width, prior.height
+def _size(prior: FootprintPrior, scale: float = 1.0) -> tuple[float, float, float]:
+    """The prior's (length, width, height), a longer vehicle's at ``scale`` > 1: length and height times ``scale``,
+    width times 1 + (scale - 1) / 3 (long vehicles are taller, not much wider)."""
+    return prior.length * scale, prior.width * (1 + (scale - 1) / 3), prior.height * scale
+
+
+# a one-wheel or no-wheel vehicle's size is searched too: the prior's (scale 1) and longer, taller ones (buses, long
+# vans: the in-domain prior knows only cars); a longer size must fit the vehicle box better by SIZE_PENALTY per unit of
+# scale (silhouette cost), chosen on the val split (ground-truth boxes and relations: AP within 10 m 83.2 without the
+# search, 83.8 with 0.01-0.03, 83.2 with 0.1)
+SIZE_SCALES = (1.0, 1.3, 1.6, 1.9, 2.2)
+SIZE_PENALTY = 0.03
+
+
+def fit_sized(fit, *args, scales: tuple[float, ...] = SIZE_SCALES) -> tuple[Box3D, float]:
+    """``fit`` (``fit_free`` or ``fit_wheel``) over the vehicle sizes ``scales`` (``_size``): the fit whose silhouette
+    cost plus ``SIZE_PENALTY`` x (scale - 1) is lowest; returns its box and silhouette cost."""
+    best = None
+    for scale in scales:
+        box, cost = fit(*args, scale=scale)
+        score = cost + SIZE_PENALTY * (scale - 1)
+        if best is None or score < best[2]:
+            best = (box, cost, score)
+    return best[0], best[1]
 
 
 def fit_free(cam: Camera, vbox: np.ndarray, prior: FootprintPrior, start: Box3D,
-             axes: list[float] | None = None) -> tuple[Box3D, float]:
+             axes: list[float] | None = None, scale: float = 1.0) -> tuple[Box3D, float]:
     """A no-wheel footprint: the prior-shaped vehicle whose image best fits the vehicle box (``silhouette_cost``),
     searched coarse to fine over its ground position around ``start``, its axis one of ``axes`` (its neighbours'),
     else along the camera's viewing direction (a vehicle whose wheels are all hidden is most often seen from its
     front or back); of the two headings along an axis, the one whose cabin fits best."""
-    size = _size(prior)
+    size = _size(prior, scale)
     bx, by = start.x, start.y
     span, step_m = 2.4, 0.6
     fixed = np.array([a + t for a in (axes or []) for t in (0.0, math.pi)])
@@ -302,17 +324,17 @@ def fit_free(cam: Camera, vbox: np.ndarray, prior: FootprintPrior, start: Box3D,
         turn = float(yaw[i]) - math.atan2(by - cam.translation[1], bx - cam.translation[0])
         fixed, turns = (np.array([yaw[i]]), turns) if len(fixed) else (fixed, np.array([turn]))
         span, step_m = step_m, step_m / 3
-    return Box3D(bx, by, prior.length, prior.width, math.remainder(float(yaw[i]), 2 * math.pi)), cost
+    return Box3D(bx, by, size[0], size[1], math.remainder(float(yaw[i]), 2 * math.pi)), cost
 
 
 def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarray,
-              prior: FootprintPrior, axes: list[float] | None = None) -> tuple[Box3D, float]:
+              prior: FootprintPrior, axes: list[float] | None = None, scale: float = 1.0) -> tuple[Box3D, float]:
     """A one-wheel footprint: the wheel sits (wheelbase/2) ahead of the centre when ``front``, behind it when
     ``rear`` (both tried without a role), (width/2 - track inset) to one side; the vehicle whose image best fits the
     vehicle box over both sides and every heading, or the two along one of ``axes`` (its neighbours'). The heading
     points to the front."""
-    size = _size(prior)
-    half_wb, lateral = prior.wheelbase / 2, prior.width / 2 - prior.track_inset
+    size = _size(prior, scale)
+    half_wb, lateral = prior.wheelbase * scale / 2, size[1] / 2 - prior.track_inset
     along = {"front": (-1.0,), "rear": (1.0,)}.get(role, (-1.0, 1.0))   # centre = contact + a * u * half_wb ...
     yaws = np.array([a + t for a in axes for t in (0.0, math.pi)]) if axes else np.arange(72) * math.pi / 36
     for it in range(1 if axes else 3):
@@ -325,7 +347,7 @@ def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarr
         step = math.pi / 36 / 4 ** it
         yaws = cand[i, 0] + np.linspace(-4 * step, 4 * step, 9)
         along = (cand[i, 1],)
-    return (Box3D(float(xy[i, 0]), float(xy[i, 1]), prior.length, prior.width, math.remainder(float(cand[i, 0]), 2 * math.pi)),
+    return (Box3D(float(xy[i, 0]), float(xy[i, 1]), size[0], size[1], math.remainder(float(cand[i, 0]), 2 * math.pi)),
             float(costs[i]))
 
 
@@ -466,7 +488,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             # the position from the vehicle box alone (a role this unsure would put the centre a wheelbase off);
             # the role, where there is one, votes for the direction
             role, c = roles.get(wheels[0]), contacts[wheels[0]]
-            box, _ = fit_wheel(cam, c, None, vbox, prior, context_axes(context, c))
+            box, _ = fit_sized(fit_wheel, cam, c, None, vbox, prior, context_axes(context, c))
             evidence, used, vote = "wheel", wheels, 0.0
             if role is not None:
                 along = np.dot(np.array([box.x, box.y]) - c, (math.cos(box.yaw), math.sin(box.yaw)))
@@ -476,9 +498,9 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             start = box_bottom_estimate(cam, vbox, prior)
             box, evidence, vote, used = start, "box", 0.0, []
             if start is not None and use_relations:
-                box, _ = fit_free(cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
+                box, _ = fit_sized(fit_free, cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
         if box is not None:
-            box = replace(box, height=prior.height)
+            box = replace(box, height=prior.height * (box.length / prior.length if evidence in ("wheel", "box") else 1.0))
             conf = EVIDENCE_CONFIDENCE[evidence] * float(vbox[4])
             if used:
                 conf *= float(np.mean([by_id[w][4] for w in used]))
@@ -569,10 +591,24 @@ def estimate_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, us
             for e in footprints_from_contacts(rec, cam, prior, found, use_relations, context)]
 
 
+def same_vehicle(lead: Box3D, other: Box3D, radius_m: float) -> bool:
+    """Whether ``other`` (a weaker or equal estimate) is the vehicle of a group led by ``lead``: their centres lie within
+    ``radius_m``, or along ``lead``'s axis within ``radius_m`` plus half of what ``lead`` is longer than ``other`` (and
+    across it within ``radius_m``). Cameras that see different wheels of one long
+    vehicle (a bus) place a shorter estimate near the end they see, up to (lead length - its length) / 2 from the
+    long footprint's centre; for two car-sized estimates this is the plain radius."""
+    if math.hypot(lead.x - other.x, lead.y - other.y) <= radius_m:
+        return True
+    c, s = math.cos(lead.yaw), math.sin(lead.yaw)
+    dx, dy = other.x - lead.x, other.y - lead.y
+    along, across = abs(c * dx + s * dy), abs(-s * dx + c * dy)
+    return across <= radius_m and along <= radius_m + max(0.0, (lead.length - other.length) / 2)
+
+
 def fuse_frame(estimates: list[Estimate], radius_m: float,
                prior: FootprintPrior | None = None) -> list[tuple[Box3D, list[Estimate]]]:
-    """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate
-    (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
+    """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate, along a
+    longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
     the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
     (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
     leading estimate points."""
@@ -582,7 +618,7 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     groups: list[list[Estimate]] = []
     for e in sorted(estimates, key=lambda e: (e.rank, nearness(e))):
         for g in groups:
-            if math.hypot(g[0].box.x - e.box.x, g[0].box.y - e.box.y) <= radius_m:
+            if same_vehicle(g[0].box, e.box, radius_m):
                 g.append(e)
                 break
         else:
