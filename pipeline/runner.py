@@ -312,7 +312,9 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"], _context(settings))
     _say(format_plan(plans, str(cache.root), left_out))
     # only the stages that will run: a hit never calls its hook (an all-hit re-run imports no stage code)
-    estimates = [e for p in plans if not p.hit
+    # pipeline.estimate: false skips the hooks (a probe costs seconds: the smoke profile's tests run hundreds of plans)
+    estimating = bool(OmegaConf.select(cfg, "pipeline.estimate", default=True))
+    estimates = [e for p in plans if not p.hit and estimating
                  if (e := estimate_stage(specs[p.name], cfg, _context(settings))) is not None]
     if estimates:
         _say(format_estimates(estimates, budget, str(cfg.get("profile_name", ""))))

@@ -107,3 +107,10 @@ def test_a_hook_returning_nonsense_is_reported_as_no_estimate():
     assert _check("x", 5) == Estimate("x", 5.0)
     assert format_estimates([Estimate("x", None, "no estimate (E: e)")], 60.0).splitlines()[-1].strip().endswith(
         "no estimate (E: e)")
+
+
+def test_estimate_false_calls_no_hook(toy, capsys):
+    summary = run_pipeline(_config(toy, **{"pipeline.estimate": False, "pipeline.time_budget_minutes": 1}),
+                           run_dir=toy.root / "run", in_process_tracking=True)
+    assert _calls(toy) == [] and "Estimated time" not in capsys.readouterr().out
+    assert not summary.get("estimates") and not any(s["hit"] for s in summary["stages"].values())
