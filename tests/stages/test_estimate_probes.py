@@ -1,11 +1,11 @@
-"""The training stages' plan-time probes (stages/training/estimate.py) on the smoke profile's sizes."""
+"""The training stages' plan-time probes (stages/estimate/__init__.py) on the smoke profile's sizes."""
 
 import math
 
 import pytest
 from hydra import compose, initialize_config_dir
 
-from stages.training import estimate
+import stages.estimate as estimate
 from tests.pipeline.test_runmode import CONF
 
 

@@ -10,7 +10,9 @@ split share (``data.frames``, ``data.cameras``, ``data.split``), an upper bound,
 without an owner relation (86 % of the quick profile's train images were kept). Where the data config names no
 frames (``data=word``) there is no estimate.
 
-No stage module imports this one, so it is in no stage's code version: a change here re-runs nothing.
+No stage module imports this package, so it is in no stage's code version: a change here re-runs nothing. It is a
+package of its own, not a module of stages.training, because it imports the detector and relation stages, which
+import stages.training.
 """
 
 from __future__ import annotations
