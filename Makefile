@@ -29,7 +29,7 @@ ablations: setup
 datasets: setup
 	$(PY) -m pipeline experiment=datasets $(ARGS)
 
-# How many images of a new camera to label (docs/adapt.md): experiment=adapt, 21 jobs two at a time. Its finetune
+# How many images of a new camera to label (docs/adapt.md): experiment=adapt, 28 jobs two at a time. Its finetune
 # recipe starts from the default run: BASE_RUN=<MLflow run id>, else the newest finished default run of profile
 # BASE_PROFILE (make pipeline's) in the tracking store, or a clear error. Then `make compare` draws the curves.
 BASE_PROFILE ?= quick

@@ -30,11 +30,12 @@ def _job(recipe: str, sample: str, *more: str) -> dict:
                            "adapt.base_run=base0", *more])
 
 
-def test_the_sweep_runs_three_recipes_on_seven_samples_two_jobs_at_a_time():
+def test_the_sweep_runs_four_recipes_on_seven_samples_two_jobs_at_a_time():
     hydra = hydra_config(["experiment=adapt"])
     assert hydra.mode.name == "MULTIRUN" and hydra.launcher.n_jobs == 2
     params = dict(hydra.sweeper.params)
-    assert params["adapt_recipe"].split(",") == ["finetune", "scratch", "mixed"]
+    assert params["adapt_recipe"].split(",") == ["finetune", "finetune_mixed", "scratch", "mixed"]
+    assert sorted(p.stem for p in (CONF / "adapt_recipe").glob("*.yaml")) == sorted(params["adapt_recipe"].split(","))
     assert params["adapt_sample"].split(",") == list(SAMPLES)            # two draws where N <= 50
     assert sorted(p.stem for p in (CONF / "adapt_sample").glob("*.yaml")) == sorted(SAMPLES)
     assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
