@@ -106,7 +106,7 @@ class MlflowOps:
         ``RecordedRun.to_json`` (``pipeline.run_record``: what the engine asks when it cannot read the store itself)."""
         from mlflow.entities import ViewType
 
-        from pipeline.run_record import DIGEST_TAG, PARENT_TAG, STAGE_TAG
+        from pipeline.run_record import DIGEST_TAG, PARENT_TAG, STAGE_TAG, RecordedRun
 
         found = self.client.search_runs(
             [self.experiment_id], filter_string=f"tags.`{DIGEST_TAG}` = '{digest}' and attributes.status = 'FINISHED'",
@@ -116,8 +116,9 @@ class MlflowOps:
         run = found[0]
         children = self.client.search_runs([self.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{run.info.run_id}'",
                                            run_view_type=ViewType.ALL, max_results=1000)
-        return {"run_id": run.info.run_id, "name": run.info.run_name or "", "start_time": run.info.start_time,
-                "children": {c.data.tags[STAGE_TAG]: c.info.run_id for c in children if STAGE_TAG in c.data.tags}}
+        return RecordedRun(run.info.run_id, run.info.run_name or "", int(run.info.start_time),
+                           {c.data.tags[STAGE_TAG]: c.info.run_id for c in children if STAGE_TAG in c.data.tags}
+                           ).to_json()
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)

@@ -190,6 +190,26 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
     # KeyboardInterrupt / SystemExit (SIGTERM): the work dir stays, so a re-run resumes from it
 
 
+def _announce_hit(plan: StagePlan, spec: StageSpec) -> None:
+    # an entry computed before the stage declared an output must not reach a stage that reads it
+    _check_outputs(spec, plan.entry.out_dir, "has a cache entry without")
+    _say(f"Stage '{plan.name}' didn't change, skipping" if plan.reason == "didn't change"
+         else f"Stage '{plan.name}': {plan.reason}, using it")
+
+
+def _remember_latest(cache: Cache, plan: StagePlan) -> None:
+    if cache.read_latest(plan.name) != plan.parts.to_json():
+        cache.write_latest(plan.name, plan.parts.to_json())
+
+
+def _stage_result(plan: StagePlan, entry: Entry, seconds: float, run_id: str) -> dict:
+    return {
+        "key": plan.key, "hit": plan.hit, "reason": plan.reason, "seconds": seconds,
+        "output_dir": str(entry.out_dir), "metrics": dict(entry.manifest.get("metrics", {})), "mlflow_run_id": run_id,
+        "computed_by_run": entry.manifest.get("mlflow_run_id", ""),
+    }
+
+
 def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
                outputs: dict[str, Path], settings: dict, launch: LaunchFile, specs: dict[str, StageSpec]) -> dict:
     name, key = plan.name, plan.key
@@ -213,14 +233,13 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
                 except BaseException:
                     tracker.end(run_id, "FAILED")
                     raise
-    if plan.hit:  # an entry computed before the stage declared an output must not reach a stage that reads it
-        _check_outputs(spec, entry.out_dir, "has a cache entry without")
+    plan.entry = entry
+    if plan.hit:
+        _announce_hit(plan, spec)
     seconds = time.perf_counter() - start
     metrics = dict(entry.manifest.get("metrics", {}))
     computed_by = entry.manifest.get("mlflow_run_id", "")
     if plan.hit:
-        _say(f"Stage '{name}' didn't change, skipping" if plan.reason == "didn't change"
-             else f"Stage '{name}': {plan.reason}, using it")
         run_id = tracker.create_run(
             name, {"cache": "hit", "cache_key": key, "stage": name, "computed_by_run": computed_by,
                    **settings["run_tags"], **plan.parts.tags}, parent_id
@@ -234,13 +253,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
     tracker.end(run_id, "FINISHED")
     if spec.dataset is not None:  # the parent run's Dataset column: this output, identified by its cache key
         tracker.log_dataset(parent_id, spec.dataset, key, str(entry.out_dir.resolve()))
-    if cache.read_latest(name) != plan.parts.to_json():
-        cache.write_latest(name, plan.parts.to_json())
-    return {
-        "key": key, "hit": plan.hit, "reason": plan.reason, "seconds": seconds,
-        "output_dir": str(entry.out_dir), "metrics": metrics, "mlflow_run_id": run_id,
-        "computed_by_run": computed_by,
-    }
+    _remember_latest(cache, plan)
+    return _stage_result(plan, entry, seconds, run_id)
 
 
 def _hydra_choices() -> dict[str, str]:
@@ -378,18 +392,10 @@ def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, r
     results: dict[str, dict] = {}
     for plan in plans:
         start = time.perf_counter()
-        entry = plan.entry
-        _check_outputs(specs[plan.name], entry.out_dir, "has a cache entry without")
-        _say(f"Stage '{plan.name}' didn't change, skipping" if plan.reason == "didn't change"
-             else f"Stage '{plan.name}': {plan.reason}, using it")
-        if cache.read_latest(plan.name) != plan.parts.to_json():
-            cache.write_latest(plan.name, plan.parts.to_json())
-        results[plan.name] = {
-            "key": plan.key, "hit": True, "reason": plan.reason, "seconds": time.perf_counter() - start,
-            "output_dir": str(entry.out_dir), "metrics": dict(entry.manifest.get("metrics", {})),
-            "mlflow_run_id": recorded.children.get(plan.name, ""),
-            "computed_by_run": entry.manifest.get("mlflow_run_id", ""),
-        }
+        _announce_hit(plan, specs[plan.name])
+        _remember_latest(cache, plan)
+        results[plan.name] = _stage_result(plan, plan.entry, time.perf_counter() - start,
+                                           recorded.children.get(plan.name, ""))
     summary = {
         "pipeline_seconds": time.perf_counter() - t0,
         "up_to_date": True,
