@@ -44,6 +44,20 @@ from pathlib import Path
 
 from pipeline.errors import PipelineError
 
+
+def replace_text_best_effort(path: Path, text: str) -> None:
+    """Atomically replace ``path`` with ``text`` (a temporary file beside it, then a rename); a failure (a read-only
+    cache, a full disk) leaves the old file and no temporary one behind, and is not raised: for records whose loss
+    costs only an explanation or a re-computation."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
 MANIFEST = "manifest.json"
 PARTIAL = ".partial-"
 OUT = "out"
@@ -164,14 +178,7 @@ class Cache:
 
     def write_latest(self, stage: str, parts: dict) -> None:
         """Atomically replace ``latest.json`` (a best-effort record: failure only loses an explanation)."""
-        path = self.stage_dir(stage) / LATEST
-        tmp = path.with_name(f".{LATEST}.{os.getpid()}.{secrets.token_hex(4)}")
-        try:
-            tmp.write_text(json.dumps(parts, indent=1, sort_keys=True))
-            os.replace(tmp, path)
-        except OSError:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+        replace_text_best_effort(self.stage_dir(stage) / LATEST, json.dumps(parts, indent=1, sort_keys=True))
 
     @contextlib.contextmanager
     def lock(self, stage: str, key: str, on_wait=None):

@@ -22,12 +22,11 @@ import hashlib
 import importlib.machinery
 import importlib.util
 import json
-import os
-import secrets
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipeline.cache import replace_text_best_effort
 from pipeline.errors import PipelineError
 
 
@@ -149,14 +148,8 @@ def _save_disk_memo(path: Path, memo: dict[str, Imports]) -> None:
         memo = {d: v for d, v in memo.items() if d in _disk_used}
     data = {"format": _DISK_FORMAT, "python": list(sys.version_info[:2]),
             "imports": {d: [[m, level, list(names)] for m, level, names in v] for d, v in memo.items()}}
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(data, separators=(",", ":")))
-        os.replace(tmp, path)
-    except OSError:  # a read-only cache: the next run parses again, nothing else changes
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+    # a read-only cache: the next run parses again, nothing else changes
+    replace_text_best_effort(path, json.dumps(data, separators=(",", ":")))
 
 
 @contextlib.contextmanager
