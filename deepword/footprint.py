@@ -37,6 +37,7 @@ the way its strongest directed estimates point, its confidence the highest of it
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, replace
 
@@ -654,8 +655,6 @@ def footprint_json(box: Box3D, group: list[Estimate]) -> dict:
 def write_footprints(path, fused: dict[int, list[tuple[Box3D, list[Estimate]]]]) -> None:
     """Fused footprints per frame, one JSON line per frame (``footprint_json`` per footprint): the bev stage's
     ``footprints/<boxes>_<method>.jsonl`` and ``deepword infer``'s ``footprints.jsonl``."""
-    import json
-
     with open(path, "w") as fh:
         for frame in sorted(fused):
             fh.write(json.dumps({"frame_id": frame, "footprints": [footprint_json(box, group)
