@@ -92,6 +92,35 @@ def relation_counts(pred_owner: torch.Tensor, owner: torch.Tensor, pred_couple: 
     return {f.name: torch.tensor(getattr(total, f.name), device=classes.device) for f in fields(Counts)}
 
 
+ROLE_KEYS = ("role_right", "role_known", "order_right", "order_known")
+
+
+def role_counts(front: torch.Tensor, role: torch.Tensor, valid: torch.Tensor, couple: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Counts of the role head's answers on a batch: wheels of known role (``role`` (B, N): 1 front, 0 rear, -1
+    unknown) whose front probability ``front`` (B, N) is on their side of 0.5 (``role_right`` of ``role_known``),
+    and true couples (``couple`` (B, N, N), symmetric 0/1) of a front and a rear wheel whose front wheel has the
+    higher probability (``order_right`` of ``order_known``): the order a predicted couple is listed in, which
+    tells the vehicle's front from its back in bird's-eye view."""
+    known = (role >= 0) & valid.bool()
+    right = ((front > 0.5) == (role == 1)) & known
+    is_front, is_rear = (role == 1) & known, (role == 0) & known
+    ordered = couple.bool() & is_front.unsqueeze(2) & is_rear.unsqueeze(1)  # rows front, columns rear
+    higher = front.unsqueeze(2) > front.unsqueeze(1)
+    return {"role_right": right.sum(), "role_known": known.sum(), "order_right": (ordered & higher).sum(),
+            "order_known": ordered.sum()}
+
+
+def role_percentages(c: dict[str, float]) -> dict[str, float]:
+    """``role_acc`` and ``order_acc`` (percent) of summed ``role_counts``; nothing where no role is known (a dataset
+    without roles)."""
+    out = {}
+    if c["role_known"] > 0:
+        out["role_acc"] = 100.0 * c["role_right"] / c["role_known"]
+    if c["order_known"] > 0:
+        out["order_acc"] = 100.0 * c["order_right"] / c["order_known"]
+    return out
+
+
 def _vehicle_wheel_pairs(wheel_rows: np.ndarray) -> list[tuple[int, int]]:
     """(vehicle, wheel) node pairs of a wheel-row/vehicle-column matrix."""
     wheels, vehicles = np.nonzero(wheel_rows)

@@ -16,8 +16,11 @@ from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
     decode_couples,
     decode_owners,
+    ROLE_KEYS,
     metrics_from_counts,
     relation_counts,
+    role_counts,
+    role_percentages,
 )
 from stages.relation.losses import relation_loss
 from stages.relation.model import ModelConfig, RelationNet, pair_geometry
@@ -117,19 +120,29 @@ class RelationDataModule(L.LightningDataModule):
 
 
 class RelationCounts(Metric):
-    """Sums of ``decode.relation_counts`` over batches (and processes, under DDP)."""
+    """Sums of ``decode.relation_counts`` and ``decode.role_counts`` over batches (and processes, under DDP)."""
 
     def __init__(self, **metric_options):
         super().__init__(**metric_options)
-        for key in COUNT_KEYS:
+        for key in COUNT_KEYS + ROLE_KEYS:
             self.add_state(key, default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
 
     def update(self, counts: dict[str, torch.Tensor]) -> None:
-        for key in COUNT_KEYS:
+        for key in COUNT_KEYS + ROLE_KEYS:
             setattr(self, key, getattr(self, key) + counts[key].to(torch.long))
 
     def compute(self) -> dict[str, float]:
-        return metrics_from_counts({k: float(getattr(self, k)) for k in COUNT_KEYS})
+        """The §7 percentages and the role head's ``role_acc`` / ``order_acc`` (where roles are known)."""
+        return {**metrics_from_counts({k: float(getattr(self, k)) for k in COUNT_KEYS}),
+                **role_percentages({k: float(getattr(self, k)) for k in ROLE_KEYS})}
+
+    def update_batch(self, decisions: tuple[torch.Tensor, torch.Tensor], front: torch.Tensor,
+                     batch: dict[str, torch.Tensor]) -> None:
+        """Adds one batch: its (owner, couple) decisions and the role head's front probabilities."""
+        pred_owner, pred_couple = decisions
+        self.update({**relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
+                                       batch["evaluated"]),
+                     **role_counts(front, batch["role"], batch["valid"], batch["couple"])})
 
 
 class RelationModule(L.LightningModule):
@@ -201,9 +214,7 @@ class RelationModule(L.LightningModule):
         loss = self._loss(outputs, batch)["loss"]
         self.log("val/loss", loss, on_epoch=True, batch_size=len(batch["classes"]), sync_dist=True)
         self.val_loss.update(loss.detach(), len(batch["classes"]))
-        pred_owner, pred_couple = self.decide(outputs, batch)
-        self.val_counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"],
-                                               batch["classes"], batch["evaluated"]))
+        self.val_counts.update_batch(self.decide(outputs, batch), outputs[2], batch)
 
     def on_validation_epoch_end(self):
         metrics = self.val_counts.compute()
@@ -236,7 +247,6 @@ def score_split(module: RelationModule | list[RelationModule], split: SplitInput
     # Scored by one process (rank 0 after a DDP fit, the others have left): nothing to gather from other ranks.
     counts = RelationCounts(sync_on_compute=False)
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
-        pred_owner, pred_couple = modules[0].decide(mean_outputs([m(batch) for m in modules]), batch)
-        counts.update(relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
-                                      batch["evaluated"]))
+        outputs = mean_outputs([m(batch) for m in modules])
+        counts.update_batch(modules[0].decide(outputs, batch), outputs[2], batch)
     return counts.compute()

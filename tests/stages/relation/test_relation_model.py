@@ -6,7 +6,14 @@ import torch
 
 from deepword.relation_graph import InputConfig, node_tensor
 from stages.relation.backbone_spec import CONV_FC, RESNET18
-from stages.relation.decode import decode_couples, decode_owners, metrics_from_counts, relation_counts
+from stages.relation.decode import (
+    decode_couples,
+    decode_owners,
+    metrics_from_counts,
+    relation_counts,
+    role_counts,
+    role_percentages,
+)
 from stages.relation.model import EDGE_FEATURES, ModelConfig, RelationNet, count_parameters, pair_geometry
 from tests.stages.relation import relation_data as rd
 
@@ -166,6 +173,24 @@ def test_couples_are_mutual_best_wheels_and_metrics_count_them():
     m = metrics_from_counts({k: float(v) for k, v in counts.items()})
     assert counts["wheels"] == 2 and m["wheel_acc"] == 100.0 and m["image_acc"] == 100.0
     assert m["pair_recall"] == 100.0 and counts["couple_tp"] + counts["couple_fn"] == 0  # couple (1, 2) is out too
+
+
+def test_role_counts_score_each_known_wheel_and_each_front_rear_couple_order():
+    # wheels 1 (front) and 2 (rear) are a couple; wheel 3 is a front wheel alone; wheel 4 has no known role;
+    # wheel 5 is padding (not valid)
+    role = torch.tensor([[-1, 1, 0, 1, -1, 0]])
+    valid = torch.tensor([[1, 1, 1, 1, 1, 0]])
+    couple = torch.zeros(1, 6, 6)
+    couple[0, 1, 2] = couple[0, 2, 1] = 1
+    front = torch.tensor([[0.5, 0.45, 0.40, 0.7, 0.9, 0.9]])  # wheel 1 below 0.5 (wrong) but above its rear (order right)
+    c = role_counts(front, role, valid, couple)
+    assert {k: int(v) for k, v in c.items()} == {"role_right": 2, "role_known": 3, "order_right": 1, "order_known": 1}
+    assert role_percentages({k: float(v) for k, v in c.items()}) == {"role_acc": pytest.approx(200 / 3),
+                                                                     "order_acc": 100.0}
+    front[0, 2] = 0.6                               # the rear wheel now above the front one: the order is wrong
+    assert int(role_counts(front, role, valid, couple)["order_right"]) == 0
+    no_roles = role_counts(front, torch.full_like(role, -1), valid, couple)
+    assert role_percentages({k: float(v) for k, v in no_roles.items()}) == {}
 
 
 def test_pair_geometry_gives_edge_offsets_size_ratios_and_containment():
