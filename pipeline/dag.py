@@ -15,7 +15,7 @@ from pipeline.errors import PipelineError
 from pipeline.outputs import check_declared
 
 STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve", "outputs",
-                "estimate"}
+                "estimate", "size"}
 
 
 @dataclass(frozen=True)
@@ -40,9 +40,20 @@ class StageSpec:
     # ``module:function`` called at plan time for a stage that will run (a miss), never for a hit: its expected
     # seconds on this host (pipeline.estimate); printed and logged, never part of the key
     estimate: str | None = None
+    # ``module:function`` called at plan time, before the checks and keys, for every selected stage: a budget sized
+    # to this host (e.g. epochs: auto), set in the config as if given on the command line (pipeline.sizing)
+    size: str | None = None
     # {name: path relative to the stage's output directory, may hold {field} placeholders}: the files downstream
     # stages read (pipeline.outputs)
     outputs: tuple[tuple[str, str], ...] = ()
+
+
+def _hook(stage: str, node, field: str) -> str | None:
+    """A hook field's 'package.module:function' (None when absent)."""
+    hook = node.get(field)
+    if hook is not None and (not isinstance(hook, str) or hook.count(":") != 1 or not all(hook.split(":"))):
+        raise PipelineError(f"pipeline.stages.{stage}.{field}: expected 'package.module:function', got {hook!r}")
+    return hook
 
 
 def _str_list(stage: str, field: str, value) -> tuple[str, ...]:
@@ -65,13 +76,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
     if not isinstance(run, str) or run.count(":") != 1 or not all(run.split(":")):
         raise PipelineError(f"pipeline.stages.{name}.run: expected 'package.module:function', got {run!r}")
     module, function = run.split(":")
-    resolve = node.get("resolve")
-    if resolve is not None and (not isinstance(resolve, str) or resolve.count(":") != 1 or not all(resolve.split(":"))):
-        raise PipelineError(f"pipeline.stages.{name}.resolve: expected 'package.module:function', got {resolve!r}")
-    estimate = node.get("estimate")
-    if estimate is not None and (not isinstance(estimate, str) or estimate.count(":") != 1
-                                 or not all(estimate.split(":"))):
-        raise PipelineError(f"pipeline.stages.{name}.estimate: expected 'package.module:function', got {estimate!r}")
+    resolve, estimate, size = (_hook(name, node, field) for field in ("resolve", "estimate", "size"))
     config = _str_list(name, "config", node.get("config"))
     inputs = _str_list(name, "inputs", node.get("inputs"))
     optional = _str_list(name, "optional", node.get("optional"))
@@ -108,6 +113,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         every_rank=every_rank,
         resolve=resolve,
         estimate=estimate,
+        size=size,
         outputs=tuple(outputs.items()),
     )
 

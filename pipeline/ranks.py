@@ -126,8 +126,10 @@ class LaunchFile:
         os.replace(tmp, self.path)
         self.written = True
 
-    def start(self, plan: dict[str, str]) -> None:
+    def start(self, plan: dict[str, str], sized: dict | None = None) -> None:
+        """The plan's keys and the values sized to rank 0's host (pipeline.sizing), which the other ranks apply."""
         self.state["plan"] = dict(plan)
+        self.state["sized"] = dict(sized or {})
         self._remove_stale()
         if self.rank.world_size > 1:
             self._write()

@@ -26,6 +26,7 @@ from pipeline.codeversion import persistent_imports
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.estimate import estimate_params, estimate_stage, format_estimates, time_budget
+from pipeline.sizing import apply_sized, format_sized, size_stages, sized_params, sized_values
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
 from pipeline.outputs import StageInputs, missing_outputs
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
@@ -315,6 +316,9 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     specs = load_stages(cfg)
     check_stage_names(specs, settings["force"], "pipeline.force")
     selected, left_out = select_stages(specs, settings["until"], settings["skip"])
+    cfg, sized = size_stages(specs, selected, cfg, settings["cache_dir"], _context(settings))
+    if sized:
+        _say(format_sized(sized, settings["cache_dir"]))
     for name in selected:
         check_values(cfg, name, specs[name].checks)
     if settings["require_server"]:
@@ -332,7 +336,7 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
                  if (e := estimate_stage(specs[p.name], cfg, _context(settings))) is not None]
     if estimates:
         _say(format_estimates(estimates, budget, str(cfg.get("profile_name", ""))))
-    launch.start({p.name: p.key for p in plans})
+    launch.start({p.name: p.key for p in plans}, sized_values(sized))
     if rank.world_size > 1:
         _say(f"{rank.described} (launch {launch.launch_id}): this rank plans, tracks and writes the cache")
     ignored = [n for n in settings["force"] if n in left_out]
@@ -355,7 +359,8 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
         return _use_recorded(recorded, specs, plans, cache, settings, run_dir, left_out, t0)
     tracker = tracker or open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch, estimates)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch, estimates,
+                        sized)
     finally:
         tracker.close()
 
@@ -417,13 +422,13 @@ def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, r
 
 
 def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0,
-             launch: LaunchFile, estimates=()) -> dict:
+             launch: LaunchFile, estimates=(), sized=()) -> dict:
     parent_tags = {**record["tags"], DIGEST_TAG: record["digest"]}
     # Every stage child run carries them too: a child row alone says which seed and code made it.
     settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
     parent_id = tracker.create_run(record["name"], parent_tags)
     # the forecast beside the record, outside its digest: compare estimate.<stage>.seconds with <stage>.seconds
-    tracker.log(parent_id, params={**record["params"], **estimate_params(list(estimates))})
+    tracker.log(parent_id, params={**record["params"], **estimate_params(list(estimates)), **sized_params(list(sized))})
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
     try:
@@ -453,6 +458,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_
         "stages": results,
         "not_run": left_out,  # stage -> why it was left out
         "estimates": {e.stage: e.seconds for e in estimates},  # plan-time forecasts (pipeline.estimate)
+        "sized": sized_values(list(sized)),  # budgets sized to this host (pipeline.sizing)
     }
     write_summary(run_dir, summary)
     _say(summary_table(summary))
@@ -489,6 +495,18 @@ class _RankZeroWatch:
         return state
 
 
+def _rank_zero_plan(rank: Rank, cache: Cache) -> dict:
+    """Rank 0's launch file once it holds its plan (or its error)."""
+    while True:
+        state = read_launch_file(cache.root, rank.launch_id) or {}
+        if state.get("error"):
+            raise PipelineError(f"{rank.described}: rank 0 of launch {rank.launch_id} failed ({state['error']}); this "
+                                "rank stops too")
+        if state.get("plan"):
+            return state
+        time.sleep(POLL_SECONDS)
+
+
 def _entry_if_complete(cache: Cache, stage: str, key: str, verify: str) -> Entry | None:
     if not (cache.entry_dir(stage, key) / "manifest.json").is_file():  # cheap test first: this runs per poll
         return None
@@ -505,6 +523,8 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     specs = load_stages(cfg)
     selected, _ = select_stages(specs, settings["until"], settings["skip"])
     cache = Cache(settings["cache_dir"])
+    if any(specs[n].size for n in selected):  # rank 0's sizing, not this rank's own probe
+        cfg = apply_sized(cfg, _rank_zero_plan(rank, cache).get("sized") or {})
     verify = settings["verify"]
     forced = set(settings["force"])
     keys: dict[str, str] = {}

@@ -103,13 +103,21 @@ class CenterNetDataset(Dataset):
             for i, item in zip(missing, pool.map(self._letterbox_uncached, missing), strict=True):
                 self._cache[i] = item
 
+    def hold(self, index: int, image: np.ndarray) -> None:
+        """Use ``image`` (decoded, of the record's size) for the record at ``index`` instead of reading its file: the
+        plan-time probe's synthetic images (stages/estimate)."""
+        self._cache[index] = self._letterboxed(image, self.records[index])
+
     def _letterbox_uncached(self, index: int) -> tuple[np.ndarray, Record]:
         record = self.records[index]
+        return self._letterboxed(load_image(self.root, record), record)
+
+    def _letterboxed(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, Record]:
         box = letterbox_for(record.width, record.height, self.input_width, self.input_height)
         boxes = record.boxes.copy()
         boxes[:, :4] = boxes_to_input(record.xyxy, box)
         inside = dataclasses.replace(record, boxes=boxes, width=self.input_width, height=self.input_height)
-        return letterbox_image(load_image(self.root, record), box), inside
+        return letterbox_image(image, box), inside
 
     def augmented(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(augmented image, its boxes (N, 4), their classes) from a letterboxed image and its record."""

@@ -109,13 +109,17 @@ def _precision_name(precision: str) -> str:
 # -- detector ------------------------------------------------------------------------------------------------
 
 
-def detector(cfg: DictConfig, context=None) -> dict | None:
-    """Seconds of the detector's training: epochs x train steps x the probed step, plus its validation passes."""
+AUTO = "auto"  # detector.epochs: auto sizes the epochs to the host (detector_epochs)
+
+
+def detector_epoch(cfg: DictConfig) -> dict | None:
+    """One detector epoch on this host: {"epoch_s": training seconds, "validation_s": one validation pass, "how": how
+    it was reached}; None where the data config names no frames."""
     import torch
 
     from stages.detector.losses import detector_loss
     from stages.detector.model import DOWN_RATIO, build_centernet, model_config
-    from stages.training.loader_workers import usable_cores
+    from stages.training.loader_workers import loader_workers, usable_cores
     from stages.training.precision import BF16, resolve_precision
 
     train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
@@ -158,19 +162,96 @@ def detector(cfg: DictConfig, context=None) -> dict | None:
                 net(val_input)
 
         forward_s = timed_steps(forward, sync)
+        item_s = _loader_item_seconds(cfg, det)
+    workers = loader_workers(det.get("num_workers"), trainer.get("accelerator", "auto"))
+    # the training process prepares each batch itself without loader workers; with them it waits only when they
+    # fall behind the step
+    batch_load_s = batch * item_s
+    train_step_s = step_s + batch_load_s if workers == 0 else max(step_s, batch_load_s / workers)
     replicas = _replicas(trainer)
-    epochs = int(det["epochs"])
     steps = limited_batches(math.ceil(train_images / replicas), batch, det.get("limit_train_batches"), drop_last=True)
     val_batches = limited_batches(math.ceil((val_images or 0) / replicas), batch, det.get("limit_val_batches"))
+    epoch_s = steps * train_step_s
+    validation_s = val_batches * forward_s
+    how = (f"{steps} steps x {1000 * train_step_s:.0f} ms ({1000 * step_s:.0f} ms {_precision_name(precision)} step, "
+           f"batch {batch} at {width}x{height}, {threads} threads{', ' + device.type if device.type != 'cpu' else ''}; "
+           f"{1000 * batch_load_s:.0f} ms loading, {workers} loader workers)")
+    return {"epoch_s": epoch_s, "validation_s": validation_s, "how": how}
+
+
+def detector(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the detector's training: epochs x (train steps x the probed step and batch loading), plus its
+    validation passes."""
+    probe = detector_epoch(cfg)
+    if probe is None:
+        return None
+    det = _plain(cfg.detector)
+    epochs = int(det["epochs"])
     val_epochs = epochs // max(1, int(det.get("val_every_n_epochs", 1)))
-    epoch_s = steps * step_s
-    seconds = epochs * epoch_s + val_epochs * val_batches * forward_s
+    epoch_s = probe["epoch_s"]
+    seconds = epochs * epoch_s + val_epochs * probe["validation_s"]
     return {"seconds": seconds,
-            "note": f"{epochs} epochs x {steps} steps x {1000 * step_s:.0f} ms ({_precision_name(precision)}, batch "
-                    f"{batch} at {width}x{height}, {threads} threads{', ' + device.type if device.type != 'cpu' else ''})"
-                    f" + {val_epochs} validations; ~{epoch_s:.0f} s an epoch",
+            "note": f"{epochs} epochs x {probe['how']} + {val_epochs} validations; ~{epoch_s:.0f} s an epoch",
             "hint": f"~{epoch_s:.0f} s an epoch: fewer epochs (detector.epochs=N, now {epochs}), a smaller profile "
                     "(profile=smoke), or a GPU (trainer=gpu)"}
+
+
+def detector_epochs(cfg: DictConfig, context=None) -> dict | None:
+    """The detector's ``size`` hook (pipeline.sizing): with ``detector.epochs: auto``, the most epochs whose estimated
+    training (``detector_epoch``: steps, batch loading and the validations) fits ``detector.sizing.minutes`` on this
+    host, within ``detector.sizing.min_epochs`` .. ``max_epochs``. Any other value of ``detector.epochs`` is left as
+    given (None)."""
+    det = _plain(cfg.detector)
+    if det.get("epochs") != AUTO:
+        return None
+    sizing = det.get("sizing") or {}
+    missing = [k for k in ("minutes", "min_epochs", "max_epochs") if sizing.get(k) is None]
+    if missing:
+        raise ValueError(f"detector.epochs=auto needs detector.sizing.{missing[0]} (the budget it is sized to)")
+    minutes, low, high = float(sizing["minutes"]), int(sizing["min_epochs"]), int(sizing["max_epochs"])
+    if minutes <= 0 or not 1 <= low <= high:
+        raise ValueError(f"detector.sizing: expected minutes > 0 and 1 <= min_epochs <= max_epochs, got {sizing}")
+    probe = detector_epoch(cfg)
+    if probe is None:
+        raise ValueError("detector.epochs=auto: the data config names no frames to size the epochs by; give "
+                         "detector.epochs=N")
+    every = max(1, int(det.get("val_every_n_epochs", 1)))
+    per_epoch = probe["epoch_s"] + probe["validation_s"] / every
+    fits = int(60.0 * minutes // per_epoch) if per_epoch > 0 else high
+    epochs = min(high, max(low, fits))
+    bound = " (the most: detector.sizing.max_epochs)" if fits >= high else \
+        " (the least: detector.sizing.min_epochs; over the budget)" if fits < low else ""
+    return {"config": {"detector.epochs": epochs},
+            "note": f"{epochs} epochs{bound} fit {minutes:g} min at ~{per_epoch:.0f} s an epoch: {probe['how']}"}
+
+
+def _loader_item_seconds(cfg: DictConfig, det: dict) -> float:
+    """Seconds the training loader spends on one item (``CenterNetDataset.__getitem__``: augmentation and
+    targets) over images of the data's size letterboxed to the input, with MEAN_OBJECTS boxes each. The images are
+    synthetic (the data need not exist yet), so the one-off decoding before training is not in it."""
+    from deepword.word_format import Record
+    from stages.detector.dataset import CenterNetDataset
+    from stages.detector.model import model_config
+
+    size = _plain(OmegaConf.select(cfg, "data.image_size", default=None)) or [det["input_width"], det["input_height"]]
+    width, height = int(size[0]), int(size[1])
+    rng = np.random.default_rng(0)
+    n = MEAN_OBJECTS
+    x1, y1 = rng.uniform(0, width * 0.9, n), rng.uniform(0, height * 0.9, n)
+    boxes = np.column_stack([x1, y1, np.minimum(x1 + rng.uniform(10, 120, n), width),
+                             np.minimum(y1 + rng.uniform(10, 80, n), height), np.ones(n),
+                             rng.integers(0, 2, n), np.arange(n)])
+    record = Record(image="probe.png", frame_id=0, camera="probe", width=width, height=height, boxes=boxes,
+                    relations=[], wheel_pairs=[])
+    dataset = CenterNetDataset(".", [record] * 8, int(det["input_width"]), int(det["input_height"]), n,
+                               augment=det["augment"], min_overlap=det["min_overlap"],
+                               regression=model_config(det)["regression"])
+    image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    for i in range(len(dataset)):
+        dataset.hold(i, image)
+    batch = max(1, int(det["batch_size"]))
+    # a batch's items per timed step: the mosaic's share of items (four images each) averages out within it
+    return timed_steps(lambda: [dataset[i % len(dataset)] for i in range(batch)]) / batch
 
 
 def _detector_targets(det: dict, batch: int, width: int, height: int, device) -> dict:

@@ -28,7 +28,9 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     train = estimate.split_images(cfg, "train")
     val = estimate.split_images(cfg, "val")
     assert train == round(8 * 0.7) * 4 and val == round(8 * 0.1) * 4   # smoke: 8 frames x 4 cameras
-    assert estimate.detector(cfg)["seconds"] == pytest.approx(4 * (train // 4) * 0.5 + 2 * math.ceil(val / 4) * 0.5)
+    # a train step: the probed step (0.5 s) + loading its batch (4 items at 0.5 s / 4 each: the items are timed a
+    # batch at a time), no loader workers on the CPU
+    assert estimate.detector(cfg)["seconds"] == pytest.approx(4 * (train // 4) * 1.0 + 2 * math.ceil(val / 4) * 0.5)
     rel = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
                "relation.train.limit_val_images=null", "relation.train.batch_size=8")
     steps = math.ceil(train * 2 / 8)  # each train image twice: once as annotated, once as a detector might see it
@@ -38,3 +40,24 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
 def test_no_frames_no_estimate():
     assert estimate.split_images(_cfg("data=word", "data.root=/nonexistent"), "train") is None
     assert estimate.limited_batches(100, 8, 3) == 3 and estimate.limited_batches(100, 8, 0.5) == 6
+
+
+def test_auto_epochs_fill_the_minutes_within_the_bounds(monkeypatch):
+    # 30 s an epoch of training + a 20 s validation every 5 epochs: 34 s an epoch
+    monkeypatch.setattr(estimate, "detector_epoch", lambda cfg: {"epoch_s": 30.0, "validation_s": 20.0, "how": "toy"})
+    auto = ["detector.epochs=auto", "detector.val_every_n_epochs=5", "detector.sizing.min_epochs=10",
+            "detector.sizing.max_epochs=55"]
+    out = estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=15"))
+    assert out["config"] == {"detector.epochs": 26} and "fit 15 min at ~34 s an epoch: toy" in out["note"]
+    out = estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=60"))
+    assert out["config"] == {"detector.epochs": 55} and "the most" in out["note"]
+    out = estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=1"))
+    assert out["config"] == {"detector.epochs": 10} and "over the budget" in out["note"]
+    assert estimate.detector_epochs(_cfg("detector.epochs=7")) is None, "a number is left as given"
+    with pytest.raises(ValueError, match="min_epochs <= max_epochs"):
+        estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=15", "detector.sizing.min_epochs=60"))
+
+
+def test_the_loader_probe_runs_the_training_items_on_synthetic_images():
+    seconds = estimate._loader_item_seconds(_cfg(), dict(_cfg().detector))
+    assert 0 < seconds < 5
