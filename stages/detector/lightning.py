@@ -63,6 +63,19 @@ class CenterNetModule(L.LightningModule):
         self.ap_min_box_px = ap_min_box_px
         self._val_detections: list[torch.Tensor] = []
         self._val_indices: list[torch.Tensor] = []
+        self.frozen: tuple[str, ...] = ()
+
+    def freeze(self, parts) -> None:
+        """Keep the network's named parts (``backbone``, ``heads``) at their starting weights: no gradients, and their
+        batch normalisation in eval mode during training (``on_train_epoch_start``), so their running statistics
+        stay the starting ones too: a few dozen new images would otherwise redraw them."""
+        for part in parts:
+            getattr(self.net, part).requires_grad_(False)
+        self.frozen = tuple(parts)
+
+    def on_train_epoch_start(self) -> None:
+        for part in self.frozen:  # Lightning set every module to train mode before this hook
+            getattr(self.net, part).eval()
 
     def forward(self, images: torch.Tensor):
         return self.net(images.contiguous(memory_format=self.memory_format))

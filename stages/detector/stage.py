@@ -111,6 +111,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
                              channels_last)
     if "init" in cfg:  # before training; a resumed attempt's last.ckpt below then replaces them
         load_start(module.net, inputs[INIT_INPUT])
+        module.freeze(cfg.init.train.get("freeze") or [])
     check_crop(det["augment"].get("crop"), module.net.backbone.stride_multiple)
     workers = loader_workers(det["num_workers"], trainer_cfg.get("accelerator", "auto"))
     data = DetectorDataModule(dataset.root, splits["train"], splits["val"], mcfg["input_width"], mcfg["input_height"],

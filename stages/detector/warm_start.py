@@ -6,9 +6,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages.training.init_source import Network, check_fits, load_state, resolve_start, scaled_epochs
+from stages.training.init_source import InitError, Network, check_fits, load_state, resolve_start, scaled_epochs
 
 DETECTOR = Network("detector", "model.pt", "net.")
+FREEZABLE = ("backbone", "heads")  # the detector's top-level parts (stages.detector.model.CenterNet)
 
 
 def budget(train: dict, cfg) -> dict:
@@ -20,10 +21,15 @@ def budget(train: dict, cfg) -> dict:
     def given(key, default):
         return default if train.get(key) is None else train[key]
 
+    freeze = list(train.get("freeze") or [])
+    unknown = [part for part in freeze if part not in FREEZABLE]
+    if unknown:
+        raise InitError(f"init.detector_train.freeze: unknown part(s) {unknown}; the detector's parts are {FREEZABLE}")
     return {"epochs": int(given("epochs", scaled_epochs(det["epochs"]))),
             "lr": float(given("lr", float(det["optimizer"]["lr"]) / 3)),
             "warmup_fraction": float(given("warmup_fraction", det["optimizer"]["warmup_fraction"])),
-            "ema_decay": float(given("ema_decay", det.get("ema_decay", 0.0)))}
+            "ema_decay": float(given("ema_decay", det.get("ema_decay", 0.0))),
+            "freeze": freeze}
 
 
 def _group_of(path: Path):

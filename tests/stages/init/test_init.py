@@ -76,7 +76,7 @@ def test_checkpoints_key_covers_content_and_budget(tmp_path):
     parts = stage_parts(cfg, "detector")
     # smoke: 1 epoch from scratch -> 1; lr a third of 2e-3; the EMA of conf/init/_finetune.yaml
     assert parts.config["init"]["train"] == {"epochs": 1, "lr": pytest.approx(2e-3 / 3), "warmup_fraction": 0.05,
-                                             "ema_decay": 0.99}
+                                             "ema_decay": 0.99, "freeze": []}
     assert parts.inputs[INIT_INPUT].startswith("sha256:") and parts.files[INIT_INPUT] == str(weights)
     assert parts.tags["init.source"] == "checkpoints" and parts.tags["init.detector_sha256"] in parts.inputs[INIT_INPUT]
     assert stage_parts(cfg, "relation").key == stage_parts(compose_cfg(), "relation").key  # relation: from scratch
@@ -238,3 +238,26 @@ def test_relation_fine_tuning_selects_its_checkpoint_by_the_val_loss():
     assert fine_tuning(cfg, filled).relation.train.select == "loss"
     assert budget({"select": None}, cfg)["select"] == "wheel_acc"         # null: as relation.train.select
     assert fine_tuning(cfg, budget({"select": "wheel_acc"}, cfg)).relation.train.select == "wheel_acc"
+
+
+def test_a_frozen_backbone_keeps_the_parents_weights_and_statistics(parent_run):
+    """init.detector_train.freeze=[backbone]: the backbone's weights and batch-norm statistics come out as the parent
+    left them, the heads learn; an unknown part is a plan-time error."""
+    from pipeline.runner import run_pipeline
+    from stages.detector.warm_start import budget
+    from stages.training.init_source import InitError
+
+    tmp, parent = parent_run["tmp"], parent_run["summary"]
+    overrides = [*parent_run["common"], "data.frames=6", "detector.seed=7", "init=run",
+                 f"init.run={parent['mlflow_run_id']}", "init.networks=[detector]",
+                 "init.detector_train.freeze=[backbone]", "pipeline.until=detector"]
+    stages = run_pipeline(compose_cfg(*overrides), run_dir=tmp / "run_frozen", in_process_tracking=True)["stages"]
+    start = _state(Path(parent["stages"]["detector"]["output_dir"]) / "model.pt")
+    tuned = _state(Path(stages["detector"]["output_dir"]) / "model.pt")
+    backbone = [k for k in start if k.startswith("backbone.")]
+    assert any(k.endswith("running_mean") for k in backbone)
+    assert all(torch.equal(start[k], tuned[k]) for k in backbone)
+    assert _distance({k: v for k, v in tuned.items() if k.startswith("heads.")}, start) > 0
+
+    with pytest.raises(InitError, match=r"unknown part\(s\) \['neck'\]"):
+        budget({"freeze": ["neck"]}, compose_cfg("init=run", "init.run=abc"))
