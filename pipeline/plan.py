@@ -11,6 +11,7 @@ from pipeline.keys import KeyParts
 VALUE_CHARS = 60
 CHANGES_SHOWN = 6   # a plan line names this many changed config leaves, then counts the rest (data=word against
                     # data=synword differs in ~90 leaves: all of them would bury the plan)
+FILES_SHOWN = 8     # and this many changed source files (moving a package changes ~80)
 
 
 @dataclass
@@ -72,7 +73,8 @@ def explain_miss(parts: KeyParts, latest: dict | None, problem: str | None) -> s
     reasons = []
     if latest.get("code_digest") != parts.code_digest:
         files = code_changes(latest.get("code", {}), parts.code)
-        reasons.append("code changed: " + (", ".join(files) if files else "(file list unavailable)"))
+        more = f", ... and {len(files) - FILES_SHOWN} more" if len(files) > FILES_SHOWN else ""
+        reasons.append("code changed: " + (", ".join(files[:FILES_SHOWN]) + more if files else "(file list unavailable)"))
     if latest.get("config") != parts.config:
         changes = config_changes(latest.get("config", {}), parts.config)
         more = f"; ... and {len(changes) - CHANGES_SHOWN} more" if len(changes) > CHANGES_SHOWN else ""
