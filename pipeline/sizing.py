@@ -17,7 +17,9 @@ file).
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import fcntl
 import hashlib
 import importlib
 import json
@@ -34,6 +36,7 @@ from pipeline.errors import PipelineError
 from pipeline.keys import canonical_json, resolved_subtree
 
 MEMO_FILE = ".sizing.json"
+LOCK_FILE = ".sizing.lock"
 
 
 @dataclass(frozen=True)
@@ -109,22 +112,43 @@ def size_stages(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfi
                 context) -> tuple[DictConfig, list[Sized]]:
     """Call the selected stages' ``size`` hooks (or take their remembered answers); returns the sized config and what
     was sized."""
-    memo_path = Path(cache_root) / MEMO_FILE
-    memo, changed, sized = None, False, []
-    for name in selected:
-        spec = specs[name]
-        if spec.size is None:
-            continue
-        memo = _read_memo(memo_path) if memo is None else memo
+    hooked = [specs[name] for name in selected if specs[name].size is not None]
+    if not hooked:
+        return cfg, []
+    with _memo_lock(Path(cache_root)):
+        return _size_locked(hooked, cfg, Path(cache_root), context)
+
+
+@contextlib.contextmanager
+def _memo_lock(cache_root: Path):
+    """One process at a time reads, probes and writes the memo: the jobs of a parallel sweep would otherwise probe
+    side by side, each under the others' load, and size one shared stage differently (two keys, two trainings)."""
+    try:
+        cache_root.mkdir(parents=True, exist_ok=True)
+        fd = os.open(cache_root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:  # a read-only cache: nothing to share a memo through
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the flock
+
+
+def _size_locked(hooked: list[StageSpec], cfg: DictConfig, cache_root: Path, context) -> tuple[DictConfig, list[Sized]]:
+    memo_path = cache_root / MEMO_FILE
+    memo, changed, sized = _read_memo(memo_path), False, []
+    for spec in hooked:
         key = _memo_key(spec, cfg)
         out, remembered = memo.get(key), True
         if out is None:
             out, remembered = _call(spec, cfg, context), False
+            if out is None:  # nothing to size (e.g. the epochs are given): nothing to remember either
+                continue
             memo[key], changed = out, True
-        if out is None:
-            continue
         cfg = apply_sized(cfg, out["config"])
-        sized.append(Sized(name, dict(out["config"]), out.get("note", ""), remembered))
+        sized.append(Sized(spec.name, dict(out["config"]), out.get("note", ""), remembered))
     if changed:
         replace_text_best_effort(memo_path, json.dumps(memo, indent=1, sort_keys=True))
     return cfg, sized

@@ -18,6 +18,14 @@ def size(cfg, context):
     return {"config": {"alpha.value": cfg.est.fits}, "note": "toy probe"}
 
 
+def slow(cfg, context):
+    import time
+    with open(cfg.est.log, "a") as f:
+        f.write("probe\\n")
+    time.sleep(0.5)
+    return {"config": {"alpha.value": cfg.est.fits}, "note": "slow toy probe"}
+
+
 def outside(cfg, context):
     return {"config": {"beta.offset": 1}, "note": ""}
 
@@ -82,3 +90,20 @@ def test_a_hook_that_fails_or_sizes_another_stages_config_stops_the_plan(toy):
     with pytest.raises(PipelineError, match=r"sized \['beta.offset'\], outside the stage's config"):
         run_pipeline(_config(toy, hook="outside"), run_dir=toy.root / "run", in_process_tracking=True)
     assert not (toy.root / "cache" / "a").exists(), "nothing ran"
+
+
+def _size_in_a_process(cfg, cache):
+    from pipeline.dag import load_stages
+
+    specs = load_stages(cfg)
+    return sizing.size_stages(specs, ["a"], cfg, cache, None)[0].alpha.value
+
+
+def test_processes_sizing_side_by_side_probe_once_and_agree(toy):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    cfg = _config(toy, hook="slow", **{"alpha.value": "auto"})
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
+        values = list(pool.map(_size_in_a_process, [cfg, cfg], [toy.root / "cache"] * 2))
+    assert values == [5, 5] and _probes(toy) == 1, "the second waited for the first and read its answer"
