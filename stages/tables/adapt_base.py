@@ -48,7 +48,14 @@ def is_default_run(run: RunRecord, profile: str) -> bool:
         return False
     if not all(k in run.metrics for k in NEEDED_METRICS):
         return False
-    return all(run.params.get(k, v) == v for k, v in default_definition(profile).items())
+    return all(_as_defined(run, k, v) for k, v in default_definition(profile).items())
+
+
+def _as_defined(run: RunRecord, key: str, value: str) -> bool:
+    """The run's param is the profile's value, or the value the plan sized the profile's ``auto`` to on the run's host
+    (pipeline.sizing: logged as ``sized.<key>`` beside the config's ``<key>``)."""
+    given = run.params.get(key, value)
+    return given == value or (value == "auto" and run.params.get(f"sized.{key}") == given)
 
 
 def newest_default_run(runs: list[RunRecord], profile: str) -> RunRecord | None:

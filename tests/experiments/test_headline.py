@@ -51,6 +51,16 @@ def test_the_headline_is_the_newest_default_run_with_end_to_end_rows():
     assert any("vehicles 80.0, wheels 88.5" in n for n in table.notes)
 
 
+def test_a_default_run_sized_to_its_host_is_still_the_default():
+    params = _default_params()
+    assert params["detector.epochs"] == "auto"
+    sized = params | {"detector.epochs": "49", "sized.detector.epochs": "49"}
+    given = params | {"detector.epochs": "49"}   # asked for 49 epochs: not the default
+    runs = [RunRecord("given", "default", 2, given, _metrics(60.0), QUICK),
+            RunRecord("sized", "default", 1, sized, _metrics(70.0), QUICK)]
+    assert headline_table(runs, "adapt")[1] == {"headline": "sized"}
+
+
 def test_the_headline_quotes_the_fine_tuned_point_at_50_images_as_the_mean_of_its_draws():
     params = _default_params()
     adapt = {"experiment_name": "adapt", "adapt.recipe": "finetune", "data.sources.pool.images": "50",
