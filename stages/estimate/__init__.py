@@ -199,8 +199,8 @@ def detector(cfg: DictConfig, context=None) -> dict | None:
 def detector_epochs(cfg: DictConfig, context=None) -> dict | None:
     """The detector's ``size`` hook (pipeline.sizing): with ``detector.epochs: auto``, the most epochs whose estimated
     training (``detector_epoch``: steps, batch loading and the validations) fits ``detector.sizing.minutes`` on this
-    host, within ``detector.sizing.min_epochs`` .. ``max_epochs``. Any other value of ``detector.epochs`` is left as
-    given (None)."""
+    host, within ``detector.sizing.min_epochs`` .. ``max_epochs``; ``max_epochs`` where the data config names no image
+    count (data=word, a composed dataset). Any other value of ``detector.epochs`` is left as given (None)."""
     det = _plain(cfg.detector)
     if det.get("epochs") != AUTO:
         return None
@@ -212,9 +212,10 @@ def detector_epochs(cfg: DictConfig, context=None) -> dict | None:
     if minutes <= 0 or not 1 <= low <= high:
         raise ValueError(f"detector.sizing: expected minutes > 0 and 1 <= min_epochs <= max_epochs, got {sizing}")
     probe = detector_epoch(cfg)
-    if probe is None:
-        raise ValueError("detector.epochs=auto: the data config names no frames to size the epochs by; give "
-                         "detector.epochs=N")
+    if probe is None:  # e.g. data=word or a composed dataset: the images are counted only once the data stage ran
+        return {"config": {"detector.epochs": high},
+                "note": f"{high} epochs (detector.sizing.max_epochs): the data config names no image count to size "
+                        "them by; detector.epochs=N sets them"}
     every = max(1, int(det.get("val_every_n_epochs", 1)))
     per_epoch = probe["epoch_s"] + probe["validation_s"] / every
     fits = int(60.0 * minutes // per_epoch) if per_epoch > 0 else high

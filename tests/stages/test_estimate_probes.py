@@ -54,6 +54,9 @@ def test_auto_epochs_fill_the_minutes_within_the_bounds(monkeypatch):
     out = estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=1"))
     assert out["config"] == {"detector.epochs": 10} and "over the budget" in out["note"]
     assert estimate.detector_epochs(_cfg("detector.epochs=7")) is None, "a number is left as given"
+    monkeypatch.undo()   # the real probe: it has no image count to time an epoch by
+    no_count = estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=15", "data=word", "data.root=/nonexistent"))
+    assert no_count["config"] == {"detector.epochs": 55} and "no image count" in no_count["note"]
     with pytest.raises(ValueError, match="min_epochs <= max_epochs"):
         estimate.detector_epochs(_cfg(*auto, "detector.sizing.minutes=15", "detector.sizing.min_epochs=60"))
 
