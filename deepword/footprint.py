@@ -37,6 +37,8 @@ the way its strongest directed estimates point, its confidence the highest of it
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import math
 from dataclasses import asdict, dataclass, replace
@@ -228,6 +230,11 @@ class Shape:
     wheelbase: float = 0.6
 
     def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """(coefficients, offsets) of the silhouette's edge points (``_cuboid``); computed once per shape (a fit asks
+        for them thousands of times); read-only."""
+        return _shape_points(self)
+
+    def _points(self) -> tuple[np.ndarray, np.ndarray]:
         lower = _cuboid(((-0.5, 0.0), (0.5, 0.0)), (0.5, 0.0), ((0.0, self.clearance), (self.belt, 0.0)))
         cx0, cx1 = self.cabin_x - self.cabin_length / 2, self.cabin_x + self.cabin_length / 2
         cabin = _cuboid(((cx0, 0.0), (cx1, 0.0)), (0.5, -0.08), ((self.belt, 0.0), (1.0, 0.0)))
@@ -235,6 +242,13 @@ class Shape:
         wheels = (np.array([[sx * half, sy * 0.5, 0.0] for sx in (1, -1) for sy in (1, -1)]),
                   np.array([[0.0, -sy * 0.1, 0.0] for _ in (1, -1) for sy in (1, -1)]))
         return (np.concatenate([lower[0], cabin[0], wheels[0]]), np.concatenate([lower[1], cabin[1], wheels[1]]))
+
+
+@functools.cache
+def _shape_points(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    coef, off = shape._points()
+    coef.flags.writeable = off.flags.writeable = False
+    return coef, off
 
 
 def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: Shape) -> np.ndarray:
@@ -287,9 +301,49 @@ SIZE_SCALES = (1.0, 1.3, 1.6, 1.9, 2.2)
 SIZE_PENALTY = 0.03
 
 
+_SHARED_FITS: dict | None = None   # ``shared_fits``: fit_sized's answers by their exact inputs, while it is open
+
+
+@contextlib.contextmanager
+def shared_fits():
+    """Within it, ``fit_sized`` remembers each answer by its exact inputs and gives it again: the bev stage estimates
+    every method's footprints on the same boxes, where most vehicles are fitted alike (their wheels assigned alike),
+    and the size search makes a fit the costliest step. The same numbers come out as without it."""
+    global _SHARED_FITS
+    outer, _SHARED_FITS = _SHARED_FITS, ({"fits": {}, "pinned": {}} if _SHARED_FITS is None else _SHARED_FITS)
+    try:
+        yield
+    finally:
+        _SHARED_FITS = outer
+
+
+def _fit_key(value, pinned: dict):
+    """A hashable stand-in for one argument of a fit: arrays by content, objects (the camera, the prior) by identity,
+    kept alive in ``pinned`` so that no other object takes their id while the memo lives."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.str, value.shape, value.tobytes()
+    if isinstance(value, list | tuple):
+        return tuple(_fit_key(v, pinned) for v in value)
+    if isinstance(value, Camera | FootprintPrior):
+        pinned[id(value)] = value
+        return type(value).__name__, id(value)
+    return value
+
+
 def fit_sized(fit, *args, scales: tuple[float, ...] = SIZE_SCALES) -> tuple[Box3D, float]:
     """``fit`` (``fit_free`` or ``fit_wheel``) over the vehicle sizes ``scales`` (``_size``): the fit whose silhouette
-    cost plus ``SIZE_PENALTY`` x (scale - 1) is lowest; returns its box and silhouette cost."""
+    cost plus ``SIZE_PENALTY`` x (scale - 1) is lowest; returns its box and silhouette cost. Within ``shared_fits``, a
+    fit of the same inputs is computed once."""
+    if _SHARED_FITS is None:
+        return _fit_sized(fit, args, scales)
+    fits = _SHARED_FITS["fits"]
+    key = (fit.__name__, _fit_key(args, _SHARED_FITS["pinned"]), scales)
+    if key not in fits:
+        fits[key] = _fit_sized(fit, args, scales)
+    return fits[key]
+
+
+def _fit_sized(fit, args: tuple, scales: tuple[float, ...]) -> tuple[Box3D, float]:
     best = None
     for scale in scales:
         box, cost = fit(*args, scale=scale)

@@ -41,6 +41,7 @@ from deepword.footprint import (
     group_confidence,
     group_directed,
     group_wheels,
+    shared_fits,
     wheel_contacts,
     write_footprints,
 )
@@ -229,29 +230,30 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     pops = populations(bcfg)
     results, detection, notes, fused_by = {}, {}, [], {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
-    for boxes in bcfg.box_sources:
-        predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
-                       for m in bcfg.methods}
-        methods = [m for m in bcfg.methods if predictions[m].is_file()]
-        for m in bcfg.methods:
-            if m not in methods:
-                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
-        if not methods:
-            continue
-        results[boxes] = {}
-        for method in [BASELINE, *methods]:
-            source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
-            preds = {r.image: r for r in read_records(predictions[source], root=ds.root,
-                                                      allow_empty=True)}
-            fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
-            fused_by[(boxes, method)] = fused
-            matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
-            results[boxes][method] = {
-                pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
-            frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
-            detection.setdefault(boxes, {})[method] = {
-                name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
-            write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
+    with shared_fits():   # the methods share their boxes: a vehicle fitted alike by two methods is fitted once
+        for boxes in bcfg.box_sources:
+            predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
+                           for m in bcfg.methods}
+            methods = [m for m in bcfg.methods if predictions[m].is_file()]
+            for m in bcfg.methods:
+                if m not in methods:
+                    notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
+            if not methods:
+                continue
+            results[boxes] = {}
+            for method in [BASELINE, *methods]:
+                source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
+                preds = {r.image: r for r in read_records(predictions[source], root=ds.root,
+                                                          allow_empty=True)}
+                fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
+                fused_by[(boxes, method)] = fused
+                matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
+                results[boxes][method] = {
+                    pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
+                frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
+                detection.setdefault(boxes, {})[method] = {
+                    name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
+                write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
     return Domain(test, truth, cameras, results, detection, fused_by, notes)
 
 

@@ -16,6 +16,7 @@ from deepword.footprint import (
     fit_wheel,
     fuse_frame,
     same_vehicle,
+    shared_fits,
     silhouette_boxes,
 )
 from deepword.format_3d import Box3D
@@ -53,6 +54,30 @@ def test_a_cars_box_keeps_the_priors_size():
     assert box.length == PRIOR.length
     box, _ = fit_sized(fit_wheel, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
     assert box.length == PRIOR.length and math.hypot(box.x - car.x, box.y - car.y) < 0.1
+
+
+def test_shared_fits_compute_a_fit_once_per_inputs_and_give_the_same_answer():
+    cam = _camera()
+    car = Box3D(0.5, 5.5, PRIOR.length, PRIOR.width, 0.05)
+    vbox = _seen(cam, car, 1.0)
+    calls = []
+
+    def counted(*args, scale):
+        calls.append(scale)
+        return fit_wheel(*args, scale=scale)
+
+    counted.__name__ = "fit_wheel"
+    alone = fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
+    assert len(calls) == len(SIZE_SCALES)
+    with shared_fits():
+        first = fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
+        again = fit_sized(counted, cam, _contact(car, 1.0).copy(), None, vbox.copy(), PRIOR, [car.yaw])
+        assert len(calls) == 2 * len(SIZE_SCALES), "the same inputs (equal arrays): fitted once"
+        fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw + 0.1])
+        assert len(calls) == 3 * len(SIZE_SCALES), "another axis: fitted again"
+    assert alone == first == again
+    fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
+    assert len(calls) == 4 * len(SIZE_SCALES), "outside shared_fits nothing is remembered"
 
 
 def _est(box: Box3D, evidence: str, camera: str) -> Estimate:
