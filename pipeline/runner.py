@@ -26,13 +26,13 @@ from pipeline.codeversion import persistent_imports
 from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.estimate import estimate_params, estimate_stage, format_estimates, time_budget
-from pipeline.sizing import apply_sized, format_sized, size_stages, sized_params, sized_values
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
 from pipeline.outputs import StageInputs, missing_outputs
 from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
 from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
 from pipeline.run_record import DIGEST_TAG, UNKNOWN, RecordedRun, find_in_sqlite, run_digest
+from pipeline.sizing import apply_sized, format_sized, size_stages, sized_params, sized_values
 from pipeline.tracker import check_server, flatten_params, open_tracker
 
 
@@ -475,8 +475,8 @@ class _RankZeroWatch:
     """What a waiting rank checks on every poll: rank 0's launch file (its error, its plan) and whether the
     process that started this rank still runs (a parent that died leaves no one to wait for)."""
 
-    def __init__(self, rank: Rank, cache: Cache, my_plan: dict[str, str]):
-        self.rank, self.cache, self.my_plan = rank, cache, my_plan
+    def __init__(self, rank: Rank, cache: Cache, my_plan: dict[str, str] | None = None):
+        self.rank, self.cache, self.my_plan = rank, cache, my_plan  # None: this rank has no plan yet to compare
         self.parent = os.getppid()
 
     def read(self) -> dict:
@@ -484,9 +484,9 @@ class _RankZeroWatch:
         if state.get("error"):
             raise PipelineError(f"{self.rank.described}: rank 0 of launch {self.rank.launch_id} failed "
                                 f"({state['error']}); this rank stops too")
-        theirs = state.get("plan") or {}
-        differ = sorted(s for s in set(theirs) | set(self.my_plan) if theirs.get(s) != self.my_plan.get(s))
-        if theirs and differ:
+        theirs, mine = state.get("plan") or {}, self.my_plan or {}
+        differ = sorted(s for s in set(theirs) | set(mine) if theirs.get(s) != mine.get(s))
+        if theirs and self.my_plan is not None and differ:
             raise PipelineError(
                 f"{self.rank.described}: rank 0 planned other cache keys for stage(s) {differ}: the ranks run "
                 "different code or config (check every node has the same checkout and command line)")
@@ -495,16 +495,11 @@ class _RankZeroWatch:
         return state
 
 
-def _rank_zero_plan(rank: Rank, cache: Cache) -> dict:
-    """Rank 0's launch file once it holds its plan (or its error)."""
-    while True:
-        state = read_launch_file(cache.root, rank.launch_id) or {}
-        if state.get("error"):
-            raise PipelineError(f"{rank.described}: rank 0 of launch {rank.launch_id} failed ({state['error']}); this "
-                                "rank stops too")
-        if state.get("plan"):
-            return state
+def _rank_zero_plan(watch: _RankZeroWatch) -> dict:
+    """Rank 0's launch file once it holds its plan (``watch.read`` raises on its error)."""
+    while not (state := watch.read()).get("plan"):
         time.sleep(POLL_SECONDS)
+    return state
 
 
 def _entry_if_complete(cache: Cache, stage: str, key: str, verify: str) -> Entry | None:
@@ -523,8 +518,9 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     specs = load_stages(cfg)
     selected, _ = select_stages(specs, settings["until"], settings["skip"])
     cache = Cache(settings["cache_dir"])
+    watch = _RankZeroWatch(rank, cache)
     if any(specs[n].size for n in selected):  # rank 0's sizing, not this rank's own probe
-        cfg = apply_sized(cfg, _rank_zero_plan(rank, cache).get("sized") or {})
+        cfg = apply_sized(cfg, _rank_zero_plan(watch).get("sized") or {})
     verify = settings["verify"]
     forced = set(settings["force"])
     keys: dict[str, str] = {}
@@ -532,7 +528,7 @@ def _follow_rank_zero(rank: Rank, cfg: DictConfig, settings: dict) -> dict:
     for name in selected:
         parts[name] = key_parts(specs[name], cfg, keys, _context(settings))
         keys[name] = parts[name].key
-    watch = _RankZeroWatch(rank, cache, keys)
+    watch.my_plan = keys
     _say(f"{rank.described} (launch {rank.launch_id}): following rank 0, which alone writes the cache and MLflow")
     joined, skipped = [], []
     for name in (n for n in selected if specs[n].every_rank):

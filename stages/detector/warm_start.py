@@ -6,7 +6,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages.training.init_source import InitError, Network, check_fits, load_state, resolve_start, scaled_epochs
+from stages.training.init_source import (
+    InitError,
+    Network,
+    check_fits,
+    load_state,
+    resolve_start,
+    scaled_epochs,
+)
 
 DETECTOR = Network("detector", "model.pt", "net.")
 FREEZABLE = ("backbone", "heads")  # the detector's top-level parts (stages.detector.model.CenterNet)

@@ -14,9 +14,9 @@ from deepword.metrics import Counts
 from deepword.relation_graph import SplitInputs, mirror_coords, node_tensor
 from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
+    ROLE_KEYS,
     decode_couples,
     decode_owners,
-    ROLE_KEYS,
     metrics_from_counts,
     relation_counts,
     role_counts,
