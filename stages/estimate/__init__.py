@@ -18,6 +18,7 @@ import stages.training.
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import statistics
 import time
@@ -112,9 +113,23 @@ def _precision_name(precision: str) -> str:
 AUTO = "auto"  # detector.epochs: auto sizes the epochs to the host (detector_epochs)
 
 
+_EPOCH_PROBES: dict[str, dict | None] = {}   # detector_epoch's answers in this process, by what decides them
+
+
 def detector_epoch(cfg: DictConfig) -> dict | None:
     """One detector epoch on this host: {"epoch_s": training seconds, "validation_s": one validation pass, "how": how
-    it was reached}; None where the data config names no frames."""
+    it was reached}; None where the data config names no frames. Probed once per process and configuration: the
+    sizing hook and the estimate hook of one plan read the same probe (their epochs aside, their configs agree)."""
+    det = {k: v for k, v in _plain(cfg.detector).items() if k not in ("epochs", "sizing")}
+    data = {k: _plain(OmegaConf.select(cfg, f"data.{k}", default=None)) for k in ("frames", "cameras", "split",
+                                                                                   "image_size")}
+    key = json.dumps([det, _plain(cfg.trainer), data], sort_keys=True, default=str)
+    if key not in _EPOCH_PROBES:
+        _EPOCH_PROBES[key] = _probe_detector_epoch(cfg)
+    return _EPOCH_PROBES[key]
+
+
+def _probe_detector_epoch(cfg: DictConfig) -> dict | None:
     import torch
 
     from stages.detector.losses import detector_loss

@@ -23,6 +23,7 @@ def test_a_real_probe_times_steps_and_says_how(stage):
 
 def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     monkeypatch.setattr(estimate, "timed_steps", lambda step, sync=None: 0.5)  # every step and forward: 0.5 s
+    monkeypatch.setattr(estimate, "_EPOCH_PROBES", {})   # no probe remembered from a real one
     cfg = _cfg("detector.epochs=4", "detector.val_every_n_epochs=2", "detector.limit_train_batches=1.0",
                "detector.limit_val_batches=1.0", "detector.batch_size=4")
     train = estimate.split_images(cfg, "train")
@@ -64,3 +65,16 @@ def test_auto_epochs_fill_the_minutes_within_the_bounds(monkeypatch):
 def test_the_loader_probe_runs_the_training_items_on_synthetic_images():
     seconds = estimate._loader_item_seconds(_cfg(), dict(_cfg().detector))
     assert 0 < seconds < 5
+
+
+def test_the_sizing_and_the_estimate_of_one_plan_share_one_probe(monkeypatch):
+    calls = []
+    monkeypatch.setattr(estimate, "_EPOCH_PROBES", {})
+    monkeypatch.setattr(estimate, "_probe_detector_epoch",
+                        lambda cfg: calls.append(1) or {"epoch_s": 10.0, "validation_s": 5.0, "how": "toy"})
+    auto = _cfg("detector.epochs=auto", "detector.sizing.minutes=1", "detector.sizing.min_epochs=1")
+    sized = estimate.detector_epochs(auto)["config"]["detector.epochs"]
+    estimate.detector(_cfg(f"detector.epochs={sized}"))
+    assert len(calls) == 1
+    estimate.detector(_cfg(f"detector.epochs={sized}", "detector.batch_size=2"))
+    assert len(calls) == 2, "another configuration: probed again"
