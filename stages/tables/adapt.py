@@ -25,6 +25,7 @@ from pipeline.tables import Table, save_figure
 ADAPT_EXPERIMENT = "adapt"
 RECIPE_PARAM = "adapt.recipe"
 IMAGES_PARAM = "data.sources.pool.images"
+FREEZE_PARAM = "init.detector_train.freeze"
 DRAW_PARAM = "data.sources.pool.draw"
 BASE_PARAM = "adapt.base_run"
 END_TO_END_PARAM = "export.end_to_end.method"
@@ -59,16 +60,29 @@ def figures(run: RunRecord) -> dict[str, float | None]:
     return out
 
 
-def adapt_points(runs: list[RunRecord], experiment: str = ADAPT_EXPERIMENT) -> dict[tuple[str, int, int], RunRecord]:
-    """The newest evaluated run of every (recipe, N, draw) of the sweep (``runs``: newest first)."""
+def recipe_label(run: RunRecord) -> str | None:
+    """The run's recipe, with the detector parts it kept frozen (``init.detector_train.freeze``) named: a variant of
+    its own, not a point of the recipe's curve."""
+    recipe = run.param(RECIPE_PARAM)
+    frozen = run.param(FREEZE_PARAM) or []
+    return None if recipe is None else f"{recipe} ({', '.join(frozen)} frozen)" if frozen else str(recipe)
+
+
+def adapt_points(runs: list[RunRecord], experiment: str = ADAPT_EXPERIMENT,
+                 base: str | None = None) -> dict[tuple[str, int, int], RunRecord]:
+    """The newest evaluated run of every (recipe, N, draw) of the sweep (``runs``: newest first); with ``base``, of the
+    recipes that start from a default run (finetune...) only the runs started from that one, so that a curve and its
+    N=0 level share one default run."""
     points: dict[tuple[str, int, int], RunRecord] = {}
     for run in runs:
-        recipe, n, draw = run.param(RECIPE_PARAM), run.param(IMAGES_PARAM), run.param(DRAW_PARAM)
+        recipe, n, draw = recipe_label(run), run.param(IMAGES_PARAM), run.param(DRAW_PARAM)
         if run.param("experiment_name") != experiment or recipe is None or n is None:
             continue
         if figures(run)["e2e"] is None:   # stopped before evaluate, or without the held-out set
             continue
-        points.setdefault((str(recipe), int(n), int(draw or 0)), run)
+        if base is not None and recipe.startswith("finetune") and base_run_id(run) != base:
+            continue
+        points.setdefault((recipe, int(n), int(draw or 0)), run)
     return points
 
 
@@ -102,8 +116,8 @@ def header() -> list[str]:
 
 def adapt_table(runs: list[RunRecord], experiment: str = ADAPT_EXPERIMENT) -> tuple[Table, dict]:
     """One row per recipe and N (mean, min and max over the draws) and the N=0 row of the default run."""
-    points = adapt_points(runs, experiment)
-    base, base_id = base_run(runs, points)
+    base, base_id = base_run(runs, adapt_points(runs, experiment))
+    points = adapt_points(runs, experiment, base_id)
     rows, used = [], {}
     if base is not None:
         f = figures(base)

@@ -43,8 +43,8 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
         if any(c is not None for c in cells):
             rows.append([label, *cells])
     sources = {"headline": run.run_id}
-    finetuned = [r for (recipe, n, _), r in adapt_points(runs, adapt_experiment).items()
-                 if recipe == "finetune" and n == ADAPT_IMAGES]
+    finetuned = [r for (recipe, n, _), r in adapt_points(runs, adapt_experiment, run.run_id).items()
+                 if recipe == "finetune" and n == ADAPT_IMAGES]   # started from this run
     if finetuned:
         draws = [_cells(r.metrics, "shift.detected", end_to_end_method(r)) for r in finetuned]
         rows.append([f"held-out domain after fine-tuning on {ADAPT_IMAGES} of its images "

@@ -186,6 +186,16 @@ def test_adapt_table_has_mean_and_range_over_draws_and_the_default_run_at_n0():
     assert not empty.rows and not none and any("make adapt" in n for n in empty.notes)
 
 
+def test_a_frozen_variant_is_its_own_row_and_a_curve_keeps_one_default_run():
+    frozen = _run("ft25_frozen", "finetune", 25, 0, _figures(5.0, 5.0))
+    frozen.params["init.detector_train.freeze"] = '["backbone"]'
+    other_base = _run("ft25_other_base", "finetune", 25, 0, _figures(1.0, 1.0), base="base9")
+    table, used = adapt_table([frozen, other_base, *_runs()])
+    rows = {(r[0], r[1]): r for r in table.rows}
+    assert ("finetune (backbone frozen)", 25) in rows and used["adapt.finetune (backbone frozen).25.0"] == "ft25_frozen"
+    assert used["adapt.finetune.25.0"] == "ft25d0", "newer, but started from another default run: not on the curve"
+
+
 def test_adapt_chart_draws_the_curves(tmp_path):
     table, _ = adapt_table(_runs())
     adapt_chart(table, tmp_path / "adapt.png")

@@ -64,11 +64,17 @@ def test_a_default_run_sized_to_its_host_is_still_the_default():
 def test_the_headline_quotes_the_fine_tuned_point_at_50_images_as_the_mean_of_its_draws():
     params = _default_params()
     adapt = {"experiment_name": "adapt", "adapt.recipe": "finetune", "data.sources.pool.images": "50",
-             "export.end_to_end.method": "deepword_then_logic"}
+             "export.end_to_end.method": "deepword_then_logic", "adapt.base_run": "base"}
     draws = [RunRecord(f"ft{d}", f"ft{d}", 5, params | adapt | {"data.sources.pool.draw": str(d)},
                        _metrics(70.0 + 10 * d) | {"eval.shift.detected.deepword_then_logic.hard.image_acc": 30.0 + d},
                        QUICK) for d in (0, 1)]
-    runs = [*draws, RunRecord("base", "default", 1, params, _metrics(80.0), QUICK)]
+    # newer, but a variant (a frozen backbone) and a fine-tuning of another default run: neither is quoted
+    frozen = RunRecord("frozen", "frozen", 7, params | adapt | {"data.sources.pool.draw": "0",
+                                                                "init.detector_train.freeze": '["backbone"]'},
+                       _metrics(10.0), QUICK)
+    other = RunRecord("other", "other", 6, params | adapt | {"data.sources.pool.draw": "0", "adapt.base_run": "old"},
+                      _metrics(20.0), QUICK)
+    runs = [frozen, other, *draws, RunRecord("base", "default", 1, params, _metrics(80.0), QUICK)]
     table, sources = headline_table(runs, "adapt")
     assert sources["headline"] == "base" and sources["headline.adapt"] == "ft0,ft1"
     row = table.rows[-1]
