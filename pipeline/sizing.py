@@ -11,8 +11,8 @@ host, under the same cache key. The plan prints each value with its note; the pa
 
 A sizing is remembered per host and stage config in the cache (``.sizing.json``): a timing probe varies from run to
 run, and a budget that moved with it would miss the cache each time. Another host (another name, processor or core
-count) is probed again; deleting the file measures again here. Ranks other than 0 take rank 0's values (its launch
-file).
+count) is probed again; deleting the file measures again here. One process sizes at a time (a lock in the temporary
+directory). Ranks other than 0 take rank 0's values (its launch file).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import importlib
 import json
 import os
 import platform
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +37,6 @@ from pipeline.errors import PipelineError
 from pipeline.keys import canonical_json, resolved_subtree
 
 MEMO_FILE = ".sizing.json"
-LOCK_FILE = ".sizing.lock"
 
 
 @dataclass(frozen=True)
@@ -122,11 +122,13 @@ def size_stages(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfi
 @contextlib.contextmanager
 def _memo_lock(cache_root: Path):
     """One process at a time reads, probes and writes the memo: the jobs of a parallel sweep would otherwise probe
-    side by side, each under the others' load, and size one shared stage differently (two keys, two trainings)."""
+    side by side, each under the others' load, and size one shared stage differently (two keys, two trainings). The
+    lock lives in the temporary directory, not the cache: sizing comes before the config checks, and a bad config
+    must leave no cache behind. (Sizing is per host, and so is the lock.)"""
+    digest = hashlib.sha256(str(cache_root.absolute()).encode()).hexdigest()[:16]
     try:
-        cache_root.mkdir(parents=True, exist_ok=True)
-        fd = os.open(cache_root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError:  # a read-only cache: nothing to share a memo through
+        fd = os.open(Path(tempfile.gettempdir()) / f"pipeline-sizing-{digest}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:  # no writable temporary directory: size without the lock
         yield
         return
     try:
