@@ -6,6 +6,7 @@ stage runs, naming the stage and the field.
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -46,6 +47,16 @@ class StageSpec:
     # {name: path relative to the stage's output directory, may hold {field} placeholders}: the files downstream
     # stages read (pipeline.outputs)
     outputs: tuple[tuple[str, str], ...] = ()
+
+
+def load_hook(stage: str, field: str, target: str):
+    """The function a stage's ``field`` (``run`` or a hook) names as ``module:function``, imported now; a clear error
+    naming the field when the module has no such function."""
+    module, function = target.split(":")
+    func = getattr(importlib.import_module(module), function, None)
+    if func is None:
+        raise PipelineError(f"pipeline.stages.{stage}.{field}: module '{module}' has no '{function}'")
+    return func
 
 
 def _hook(stage: str, node, field: str) -> str | None:

@@ -13,13 +13,12 @@ change a cache key or a result: they are printed, written to ``summary.json`` an
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass
 
 from omegaconf import DictConfig, OmegaConf
 
-from pipeline.dag import StageSpec
+from pipeline.dag import StageSpec, load_hook
 from pipeline.errors import PipelineError
 
 
@@ -54,12 +53,8 @@ def estimate_stage(spec: StageSpec, cfg: DictConfig, context) -> Estimate | None
     """Call the stage's ``estimate`` hook; a failure becomes an estimate without seconds that says why."""
     if spec.estimate is None:
         return None
-    module, function = spec.estimate.split(":")
     try:
-        func = getattr(importlib.import_module(module), function, None)
-        if func is None:
-            raise PipelineError(f"pipeline.stages.{spec.name}.estimate: module '{module}' has no '{function}'")
-        return _check(spec.name, func(cfg, context))
+        return _check(spec.name, load_hook(spec.name, "estimate", spec.estimate)(cfg, context))
     except Exception as exc:  # an estimate is advice: the run goes on without it
         return Estimate(spec.name, None, f"no estimate ({type(exc).__name__}: {exc})")
 

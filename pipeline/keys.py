@@ -14,7 +14,6 @@ What the hook raises is reported at plan time, naming the stage, before any stag
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.cache import file_sha256
 from pipeline.codeversion import code_version
-from pipeline.dag import StageSpec
+from pipeline.dag import StageSpec, load_hook
 from pipeline.errors import PipelineError
 from pipeline.watch import watch_fingerprint
 
@@ -122,11 +121,8 @@ def resolve_extras(spec: StageSpec, cfg: DictConfig, context: PlanContext | None
     """Call the stage's ``resolve`` hook (see the module docstring) and check what it returned."""
     if spec.resolve is None:
         return Resolved()
-    module, function = spec.resolve.split(":")
     where = f"pipeline.stages.{spec.name}.resolve"
-    func = getattr(importlib.import_module(module), function, None)
-    if func is None:
-        raise PipelineError(f"{where}: module '{module}' has no '{function}'")
+    func = load_hook(spec.name, "resolve", spec.resolve)
     try:
         out = func(cfg, context or default_context(cfg))
     except PipelineError:

@@ -7,7 +7,6 @@ key parts alone, before any stage module is imported.
 
 from __future__ import annotations
 
-import importlib
 import os
 import shutil
 import subprocess
@@ -23,7 +22,7 @@ from pipeline import tracking
 from pipeline.cache import IMPORTS_MEMO, VERIFY_MODES, Cache, Entry, now_iso
 from pipeline.checks import check_values
 from pipeline.codeversion import persistent_imports
-from pipeline.dag import StageSpec, check_stage_names, load_stages, select_stages
+from pipeline.dag import StageSpec, check_stage_names, load_hook, load_stages, select_stages
 from pipeline.errors import PipelineError
 from pipeline.estimate import estimate_params, estimate_stage, format_estimates, time_budget
 from pipeline.keys import KeyParts, PlanContext, file_digest, key_parts
@@ -168,9 +167,7 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
         launch.computing(spec.name, plan.key, resumed, tmp / "out")
     start = time.perf_counter()
     try:
-        func = getattr(importlib.import_module(spec.module), spec.function, None)
-        if func is None:
-            raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
+        func = load_hook(spec.name, "run", f"{spec.module}:{spec.function}")
         tracking.set_active((uri, run_id))
         try:
             metrics = _check_metrics(spec.name, func(_stage_cfg(plan.parts), inputs, tmp / "out"))
@@ -578,9 +575,7 @@ def _join_stage(spec: StageSpec, parts: KeyParts, inputs: dict[str, Path], compu
             shutil.copytree(computing["work_dir"], out)
         else:
             out.mkdir()
-        func = getattr(importlib.import_module(spec.module), spec.function, None)
-        if func is None:
-            raise PipelineError(f"pipeline.stages.{spec.name}.run: module '{spec.module}' has no '{spec.function}'")
+        func = load_hook(spec.name, "run", f"{spec.module}:{spec.function}")
         tracking.set_active(None)  # only rank 0 logs
         func(_stage_cfg(parts), inputs, out)
     finally:

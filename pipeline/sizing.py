@@ -21,7 +21,6 @@ import contextlib
 import copy
 import fcntl
 import hashlib
-import importlib
 import json
 import os
 import platform
@@ -32,7 +31,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from pipeline.cache import replace_text_best_effort
-from pipeline.dag import StageSpec
+from pipeline.dag import StageSpec, load_hook
 from pipeline.errors import PipelineError
 from pipeline.keys import canonical_json, resolved_subtree
 
@@ -75,10 +74,7 @@ def _read_memo(path: Path) -> dict:
 
 
 def _call(spec: StageSpec, cfg: DictConfig, context) -> dict | None:
-    module, function = spec.size.split(":")
-    func = getattr(importlib.import_module(module), function, None)
-    if func is None:
-        raise PipelineError(f"pipeline.stages.{spec.name}.size: module '{module}' has no '{function}'")
+    func = load_hook(spec.name, "size", spec.size)
     try:
         out = func(cfg, context)
     except PipelineError:
