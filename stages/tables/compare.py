@@ -5,8 +5,9 @@ Each table row is a configuration given by its Hydra overrides (``rows.py``); a 
 logged parameters equal the row's composed configuration (``RowMatcher``), whichever command produced it
 (a sweep of ``make ablations`` or a single run); the newest such run is used. Writes
 ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's,
-``deepword.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed), ``bev.{md,csv}`` (bird's-eye-view
-footprints per method, docs/bev.md, of the newest run with them), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
+``deepword.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed),
+``bev.md``, ``bev.csv``, ``bev_populations.csv`` (the footprints scored the nuScenes way, per method and per wheel
+population, of the newest run with them; ``stages.tables.bev``), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
 scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
 artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment, and with
 ``--results FILE`` writes the tables and charts, with the commit and date of every run, into that page.
@@ -29,6 +30,7 @@ from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
 from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
+from stages.tables.bev import bev_tables
 from stages.tables.headline import headline_table, write_headline
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 
@@ -103,33 +105,6 @@ def table3(runs: list[RunRecord], matcher: RowMatcher) -> tuple[Table, dict]:
              "The paper does not say whether its accuracy is per wheel or per image: both are shown."]
     return Table("Table 3: logic model vs DeepWORD on easy / hard / mixed", header, rows, notes), \
         {"table3": run.run_id if run else None}
-
-
-BEV_METHODS = {"box_bottom": "box bottom (no relation)", "logic": "Logic model", "logic_plus": "Logic+ (ours)",
-               "deepword": "DeepWORD"}
-BEV_METRICS = ("center_err_m", "heading_err_deg", "bev_iou", "recall")
-BEV_POPULATIONS = {"paired.": "two same-side wheels", "": "all"}
-
-
-def bev_table(runs: list[RunRecord]) -> tuple[Table, dict]:
-    """Footprints in bird's-eye view (docs/bev.md) of the newest run with bev metrics: per box source and
-    method, medians over the vehicles within range that show two same-side wheels (the targets' population)
-    and over all vehicles within range."""
-    needed = "bev.gt.deepword.paired.center_err_m"
-    run = next((r for r in runs if needed in r.metrics), None)  # runs: newest first
-    m = run.metrics if run else {}
-    header = ["Boxes", "Method"] + [f"{k} ({label})" for label in BEV_POPULATIONS.values() for k in BEV_METRICS]
-    rows = []
-    for boxes in ("gt", "detected"):
-        for method, label in BEV_METHODS.items():
-            cells = [m.get(f"bev.{boxes}.{method}.{pop}{k}") for pop in BEV_POPULATIONS for k in BEV_METRICS]
-            if any(c is not None for c in cells):
-                rows.append([boxes, label, *cells])
-    notes = [f"Run {provenance(run)}, id {run.run_id}; vehicles within the run's bev.max_range_m of the ego's rear axle; "
-             "errors in m and degrees (heading modulo 180), recall in %." if run else
-             "No finished run with bev metrics: run `make pipeline` on a dataset with calibration."]
-    return Table("Bird's-eye view: footprints from wheel contacts", header, rows, notes), \
-        {"bev": run.run_id if run else None}
 
 
 DATASETS_EXPERIMENT = "datasets"
@@ -278,7 +253,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t2, used2 = backbone_table("Table 2: ablations (Conv+fc)", TABLE2, runs, "table2", matcher)
     t3, used3 = table3(runs, matcher)
     td, used_datasets = datasets_table(runs, datasets_experiment)
-    tb, used_bev = bev_table(runs)
+    tbs, used_bev = bev_tables(runs)
     ta, used_adapt = adapt_table(runs, adapt_experiment)
     th, used_headline = headline_table(runs, adapt_experiment)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -290,9 +265,10 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in [*tables, td, tb, ta]))
-    (out_dir / "bev.md").write_text(tb.markdown())
-    tb.write_csv(out_dir / "bev.csv")
+        + "\n".join(t.markdown() for t in [*tables, td, *tbs, ta]))
+    (out_dir / "bev.md").write_text("\n".join(t.markdown() for t in tbs))
+    for name, table in zip(("bev", "bev_populations"), tbs, strict=False):
+        table.write_csv(out_dir / f"{name}.csv")
     bar_chart(tables, out_dir / "comparison.png")
     (out_dir / "datasets.md").write_text(td.markdown())
     td.write_csv(out_dir / "datasets.csv")
@@ -310,7 +286,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
                | used_datasets | used_bev | used_adapt | used_headline)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if results is not None:
-        write_results_page(results, [th, *tables, td, tb, ta], out_dir, scope)
+        write_results_page(results, [th, *tables, td, *tbs, ta], out_dir, scope)
     if readme is not None:
         write_headline(readme, th)
     if log:

@@ -55,9 +55,27 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
         notes.append(f"Detector test AP@0.5: vehicles {ap[0]:.1f}, wheels {ap[1]:.1f} "
                      f"(held out: {_fmt(m.get('detector.shift.ap50.vehicle'))}, "
                      f"{_fmt(m.get('detector.shift.ap50.wheel'))}).")
+    bev = _bev_note(m, end_to_end_method(run))
+    if bev:
+        notes.append(bev)
     notes.append(f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), profile {run.tags.get('profile', '?')}, "
                  f"seed {run.tags.get('seed', '?')}; every image is a synthetic render.")
     return Table("Headline", header, rows, notes), sources
+
+
+def _bev_note(metrics: dict[str, float], method: str) -> str | None:
+    """The footprints of the end-to-end method, scored the nuScenes way within range (docs/bev.md), or None."""
+    def scores(domain: str) -> str | None:
+        keys = [f"bev.{domain}detected.{method}.all.{k}" for k in ("ap", "ate_m", "aoe_deg", "aoe180_deg")]
+        if any(k not in metrics for k in keys):
+            return None
+        ap, ate, aoe, aoe180 = (metrics[k] for k in keys)
+        return f"AP {ap:.1f}, ATE {ate:.2f} m, AOE {aoe:.1f}° over 360° ({aoe180:.1f}° modulo 180°)"
+    here, held_out = scores(""), scores("shift.")
+    if here is None:
+        return None
+    return (f"Bird's-eye view, end to end, every vehicle within range: {here}"
+            + (f"; held out: {held_out}." if held_out else "."))
 
 
 def _cells(metrics: dict[str, float], boxes: str, method: str) -> list[float | None]:

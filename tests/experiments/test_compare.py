@@ -179,23 +179,36 @@ def test_results_page_gets_the_tables_and_charts_with_commit_and_date_and_keeps_
     assert (tmp_path / "docs" / "results" / "comparison.png").stat().st_size > 10_000
 
 
-def test_bev_table_takes_the_newest_run_with_footprint_metrics():
+def test_bev_tables_take_the_newest_run_with_footprint_scores():
     from pipeline.runs import RunRecord
-    from stages.tables.compare import bev_table
+    from stages.tables.bev import bev_tables
 
     def run(name, metrics):
         return RunRecord(name, name, 0, {}, metrics, {})
 
-    newest = {"bev.gt.deepword.paired.center_err_m": 0.16, "bev.gt.deepword.center_err_m": 0.24,
-              "bev.gt.box_bottom.paired.center_err_m": 0.8, "bev.detected.deepword.paired.recall": 90.0}
-    table, used = bev_table([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
-                             run("old", {"bev.gt.deepword.paired.center_err_m": 9.0})])
+    newest = {"bev.gt.deepword.all.ap": 86.3, "bev.gt.deepword.all.ate_m": 0.204, "bev.gt.deepword.paired.center_err_m": 0.15,
+              "bev.shift.gt.deepword.all.aoe_deg": 42.3, "bev.gt.box_bottom.all.ap": 49.1,
+              "bev.detected.deepword_then_logic.all.precision": 77.4,
+              "bev.detected.deepword_then_logic.one_wheel.vehicles": 53.0,
+              "bev.shift.detected.deepword_then_logic.one_wheel.ap": 4.2}
+    (main, populations), used = bev_tables([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
+                                            run("old", {"bev.gt.deepword.all.ap": 9.0})])
     assert used == {"bev": "new"}
-    rows = {(r[0], r[1]): r[2:] for r in table.rows}
-    assert rows[("gt", "DeepWORD")][0] == 0.16 and rows[("gt", "DeepWORD")][4] == 0.24
-    assert rows[("gt", "box bottom (no relation)")][0] == 0.8 and ("gt", "Logic model") not in rows
-    assert rows[("detected", "DeepWORD")][3] == 90.0
-    assert bev_table([])[1] == {"bev": None} and not bev_table([])[0].rows
+    rows = {tuple(r[:3]): r[3:] for r in main.rows}
+    columns = [c for c in main.header[3:]]
+    ground_truth = rows[("in domain", "ground truth", "DeepWORD")]
+    assert ground_truth[columns.index("AP (%)")] == 86.3 and ground_truth[columns.index("ATE (m)")] == 0.204
+    assert ground_truth[-1] == 0.15   # the paired median, as earlier runs reported it
+    assert rows[("held out", "ground truth", "DeepWORD")][columns.index("AOE 360° (°)")] == 42.3
+    assert rows[("in domain", "ground truth", "box bottom (no relation)")][0] == 49.1
+    assert rows[("in domain", "detected", "`deepword_then_logic`")][columns.index("precision (%)")] == 77.4
+    assert ("in domain", "ground truth", "`logic` (the paper's IoU rule)") not in rows   # nothing logged
+    one_wheel = {r[0]: r[1:] for r in populations.rows}["one wheel"]
+    assert one_wheel[populations.header[1:].index("vehicles in domain")] == 53   # a count, not 53.00
+    assert one_wheel[populations.header[1:].index("AP (%) held out")] == 4.2
+    assert "deepword_then_logic" in populations.title
+    empty, none = bev_tables([])
+    assert none == {"bev": None} and len(empty) == 1 and not empty[0].rows
 
 
 def _logged_before_target(params: dict[str, str]) -> dict[str, str]:

@@ -51,6 +51,17 @@ def test_the_headline_is_the_newest_default_run_with_end_to_end_rows():
     assert any("vehicles 80.0, wheels 88.5" in n for n in table.notes)
 
 
+def test_the_headline_quotes_the_end_to_end_footprints_scored_the_nuscenes_way():
+    params = _default_params()
+    bev = {f"bev.{d}detected.deepword_then_logic.all.{k}": v for d, scale in (("", 1.0), ("shift.", 0.5))
+           for k, v in (("ap", 80.0 * scale), ("ate_m", 0.25 / scale), ("aoe_deg", 40.0), ("aoe180_deg", 5.0))}
+    table, _ = headline_table([RunRecord("new", "default", 1, params, _metrics(80.0) | bev, QUICK)], "adapt")
+    assert ("Bird's-eye view, end to end, every vehicle within range: AP 80.0, ATE 0.25 m, AOE 40.0° over 360° "
+            "(5.0° modulo 180°); held out: AP 40.0, ATE 0.50 m") in " ".join(table.notes)
+    table, _ = headline_table([RunRecord("new", "default", 1, params, _metrics(80.0), QUICK)], "adapt")
+    assert not any("Bird's-eye" in n for n in table.notes)   # a run without the bev stage: no such line
+
+
 def test_a_default_run_sized_to_its_host_is_still_the_default():
     params = _default_params()
     assert params["detector.epochs"] == "auto"

@@ -1,0 +1,69 @@
+"""The bird's-eye-view tables of ``make compare`` (docs/bev.md, "Scoring"), from the newest run with footprint
+metrics: the nuScenes-style detection scores of every vehicle within range per box source and method, in domain and
+on the held-out domain, with the paired median of the vehicles that show two same-side wheels beside them (the
+figure earlier runs reported, so that the history reads on); then the end-to-end method's scores per wheel
+population and distance bin."""
+
+from __future__ import annotations
+
+from pipeline.runs import RunRecord
+from pipeline.tables import Table
+from stages.tables.adapt import end_to_end_method
+
+METHODS = {"box_bottom": "box bottom (no relation)", "logic": "`logic` (the paper's IoU rule)",
+           "logic_plus": "`logic_plus`", "deepword": "DeepWORD", "deepword_then_logic": "`deepword_then_logic`"}
+DOMAINS = {"": "in domain", "shift.": "held out"}
+BOXES = {"gt": "ground truth", "detected": "detected"}
+# (metric key, column): the detection scores of one subset (design.md §7).
+SCORES = (("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("ase", "ASE"), ("aoe_deg", "AOE 360° (°)"),
+          ("aoe180_deg", "AOE mod 180° (°)"), ("recall", "recall (%)"), ("precision", "precision (%)"))
+PAIRED = ("paired.center_err_m", "median centre error, two same-side wheels (m)")
+SUBSETS = {"all": "all within range", "two_wheels": "two wheels", "one_wheel": "one wheel", "no_wheel": "no wheel",
+           "0-5m": "0–5 m", "5-10m": "5–10 m", "10-20m": "10–20 m"}
+SUBSET_SCORES = (("vehicles", "vehicles"), ("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("aoe_deg", "AOE 360° (°)"),
+                 ("recall", "recall (%)"), ("precision", "precision (%)"))
+NEEDED = "bev.gt.deepword.all.ap"
+
+
+def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
+    """The two tables of the newest run (``runs``: newest first) with footprint detection scores."""
+    run = next((r for r in runs if NEEDED in r.metrics), None)
+    m = run.metrics if run else {}
+    header = ["Domain", "Boxes", "Method", *(label for _, label in SCORES), PAIRED[1]]
+    rows = []
+    for domain, domain_label in DOMAINS.items():
+        for boxes, boxes_label in BOXES.items():
+            for method, label in METHODS.items():
+                prefix = f"bev.{domain}{boxes}.{method}."
+                cells = [m.get(f"{prefix}all.{k}") for k, _ in SCORES] + [m.get(prefix + PAIRED[0])]
+                if any(c is not None for c in cells):
+                    rows.append([domain_label, boxes_label, label, *cells])
+    if run is None:
+        notes = ["No finished run with footprint scores: run `make pipeline` on a dataset with calibration."]
+        return [Table("Bird's-eye view, scored the nuScenes way", header, rows, notes)], {"bev": None}
+    notes = [f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), id {run.run_id}: every frame's footprints (its "
+             "cameras fused) against its true vehicles within the run's `bev.max_range_m` of the vehicle frame's origin. "
+             "AP: the mean over 0.5 / 1 / 2 / 4 m centre distance; ATE, ASE, AOE: at 2 m, averaged over recall as "
+             "nuScenes does; AOE over 360° (front and back told apart) and modulo 180°; recall and precision at 2 m.",
+             "The last column is the paired median of the vehicles with two visible same-side wheels, as earlier "
+             "runs reported it (docs/bev.md, \"Scoring\")."]
+    main = Table("Bird's-eye view, scored the nuScenes way", header, rows, notes)
+
+    e2e = end_to_end_method(run)
+    header = ["Vehicles", *(f"{label} {d}" for d in DOMAINS.values() for _, label in SUBSET_SCORES)]
+    rows = []
+    for subset, label in SUBSETS.items():
+        cells = [_count(m.get(f"bev.{domain}detected.{e2e}.{subset}.{k}"), k) for domain in DOMAINS
+                 for k, _ in SUBSET_SCORES]
+        if any(c is not None for c in cells):
+            rows.append([label, *cells])
+    populations = Table(f"Bird's-eye view, end to end (`{e2e}` on detected boxes), by wheels seen and distance",
+                        header, rows,
+                        ["The wheel populations: by the most of a vehicle's wheels annotated in one of the frame's "
+                         "images, within range; the distance bins by the vehicle's range. Same run as above."])
+    return [main, populations], {"bev": run.run_id}
+
+
+def _count(value: float | None, key: str) -> float | int | None:
+    """A count as a whole number (MLflow stores every metric as a float)."""
+    return int(value) if key == "vehicles" and value is not None else value
