@@ -308,18 +308,31 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     return summary
 
 
+def _checks_before_sizing(spec: StageSpec, cfg: DictConfig) -> tuple:
+    """The stage's checks, less those of a stage with a size hook on a key it leaves as a word for the hook."""
+    if spec.size is None:
+        return spec.checks
+    return tuple((key, rules) for key, rules in spec.checks
+                 if not isinstance(OmegaConf.select(cfg, key, default=None), str))
+
+
 def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launch_dir, overrides,
                    in_process_tracking, t0) -> dict:
     specs = load_stages(cfg)
     check_stage_names(specs, settings["force"], "pipeline.force")
     selected, left_out = select_stages(specs, settings["until"], settings["skip"])
+    # Checked before the size hooks: a probe takes seconds and writes the memo, and a bad value elsewhere must stop
+    # the run first. A checked key that a sized stage leaves as a word (``auto``) is the hook's to fill: checked after.
+    for name in selected:
+        check_values(cfg, name, _checks_before_sizing(specs[name], cfg))
+    if settings["require_server"]:
+        check_server(settings["uri"])
     cfg, sized = size_stages(specs, selected, cfg, settings["cache_dir"], _context(settings))
     if sized:
         _say(format_sized(sized, settings["cache_dir"]))
     for name in selected:
-        check_values(cfg, name, specs[name].checks)
-    if settings["require_server"]:
-        check_server(settings["uri"])
+        if specs[name].size is not None:
+            check_values(cfg, name, specs[name].checks)
     if in_process_tracking is None:  # decided now: a resolve hook may import MLflow while planning
         in_process_tracking = "mlflow" in sys.modules
     budget = time_budget(cfg)

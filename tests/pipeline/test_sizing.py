@@ -92,6 +92,22 @@ def test_a_hook_that_fails_or_sizes_another_stages_config_stops_the_plan(toy):
     assert not (toy.root / "cache" / "a").exists(), "nothing ran"
 
 
+def test_a_bad_value_stops_the_run_before_the_probe_and_the_sized_value_is_checked_once_sized(toy):
+    checks = {"alpha.value": ">= 1", "beta.offset": ">= 0"}
+    cfg = _config(toy, **{"alpha.value": "auto", "beta.offset": -1})
+    cfg.pipeline.stages.a.checks = checks
+    with pytest.raises(PipelineError, match=r"beta.offset = -1: must be >= 0"):
+        run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    assert _probes(toy) == 0, "a bad value elsewhere stops the run before the probe"
+    assert not (toy.root / "cache" / ".sizing.json").exists(), "and nothing is remembered"
+
+    cfg = _config(toy, **{"alpha.value": "auto", "est.fits": 0})   # the hook sizes to 0: checked once sized
+    cfg.pipeline.stages.a.checks = checks
+    with pytest.raises(PipelineError, match=r"alpha.value = 0: must be >= 1"):
+        run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    assert _probes(toy) == 1 and not (toy.root / "cache" / "a").exists()
+
+
 def _size_in_a_process(cfg, cache):
     from pipeline.dag import load_stages
 
