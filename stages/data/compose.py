@@ -1,15 +1,16 @@
 """A dataset composed of several sources (a data config with ``sources``; ``data=adapt``, docs/adapt.md).
 
 Each source is built as its own config would build it, into the one output directory: ``synword`` (the generator,
-split by frame as ``data=synword`` splits it: the same records and the same seed give the same splits) and ``pool``
-(N images of a new domain's pool, ``stages.data.pool``). A source's ``use`` says which of its own splits feed each
+split by frame as ``data=synword`` splits it: the same records and the same seed give the same splits), ``pool``
+(N images of a new domain's pool, ``stages.data.pool``) and ``word`` (a WORD directory on disk, its images linked in,
+split by frame as ``data=word`` splits it: ``stages.data.word_source``). A source's ``use`` says which of its own splits feed each
 composed split (``{train: train, val: val, test: null}``: its test images are not used). ``train_share`` repeats a
 source's train images (whole copies, at most ``max_repeat``) until they make about that share of the composed train
 split: a few new images beside ~1,000 generated ones would otherwise weigh next to nothing. The easy / hard / mixed
 subsets are drawn from the composed test split as for any dataset.
 
-Sources must not share an image path or a frame index (the pool's frames start at ``first_frame``): every stage
-keys records by image and groups cameras by frame. Every record carries its source's name (``data_source``).
+Sources must not share an image path or a frame index (the pool's and a WORD directory's frames start at
+``first_frame``): every stage keys records by image and groups cameras by frame. Every record carries its source's name (``data_source``).
 """
 
 from __future__ import annotations
@@ -20,9 +21,10 @@ from deepword.word_format import SPLITS, DatasetError, Record, difficulty_subset
 from stages.data.pool import pool_splits, take_images
 from stages.data.stats import make_splits, split_metrics
 from stages.data.synword import generate
+from stages.data.word_source import link_word_source
 
 SOURCE_KEY = "data_source"   # the record's extra key naming the source it came from
-KINDS = ("synword", "pool")
+KINDS = ("synword", "pool", "word")
 
 
 def build_sources(dcfg: dict, seed: int, out_dir: Path) -> tuple[list[Record], dict[str, list[str]], dict[str, float]]:
@@ -45,7 +47,7 @@ def build_sources(dcfg: dict, seed: int, out_dir: Path) -> tuple[list[Record], d
             if owner_of_frame.setdefault(rec.frame_id, name) != name:
                 raise DatasetError(out_dir, None, f"data.sources.{name}",
                                    f"frame {rec.frame_id} is also source {owner_of_frame[rec.frame_id]!r}'s "
-                                   "(give the pool another first_frame)")
+                                   "(give the source another first_frame)")
             owner_of_image[rec.image] = name
             rec.extra[SOURCE_KEY] = name
         records += recs
@@ -82,8 +84,12 @@ def build_source(name: str, scfg: dict, seed: int, out_dir: Path) -> tuple[list[
         recs, frames = take_images(scfg, seed, out_dir)
         return recs, pool_splits(recs, frames, float(scfg["val_share"])), {"images": float(len(recs)),
                                                                             "frames": float(len(frames))}
-    raise ValueError(f"data.sources.{name}.name: {kind!r} cannot be composed (one of {', '.join(KINDS)}; "
-                     "a WORD directory on disk is data=word alone)")
+    if kind == "word":
+
+        recs = link_word_source(scfg, name, out_dir)
+        own = make_splits(recs, scfg["split"], seed, int(scfg["max_easy_vehicles"]))
+        return recs, {s: own[s] for s in SPLITS}, {"images": float(len(recs))}
+    raise ValueError(f"data.sources.{name}.name: {kind!r} cannot be composed (one of {', '.join(KINDS)})")
 
 
 def route(name: str, use: dict, own: dict[str, list[str]]) -> dict[str, list[str]]:

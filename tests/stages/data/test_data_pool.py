@@ -128,7 +128,49 @@ def test_composition_errors_name_the_source(tmp_path):
     cfg = adapt_cfg({"train": None, "val": None, "test": "tset"})
     with pytest.raises(ValueError, match=r"data.sources.synword.use.test: 'tset' is not a split"):
         build_sources(cfg, SEED, tmp_path / "typo")
-    cfg["sources"]["synword"].update(name="word", use={"test": "test"})
-    with pytest.raises(ValueError, match="cannot be composed"):
-        build_sources(cfg, SEED, tmp_path / "word")
+    cfg["sources"]["synword"].update(name="coco", use={"test": "test"})
+    with pytest.raises(ValueError, match="data.sources.synword.name: 'coco' cannot be composed"):
+        build_sources(cfg, SEED, tmp_path / "coco")
     assert set(SPLITS) == {"train", "val", "test"}
+
+
+def yours_cfg(root) -> dict:
+    """data=mixed's source of your own images (a WORD directory), as conf/data/mixed.yaml gives it."""
+    src = OmegaConf.to_container(OmegaConf.load(CONF / "mixed.yaml")["sources"]["yours"], resolve=False)
+    src.update(root=str(root), max_easy_vehicles=3)
+    return src
+
+
+def test_a_word_directory_composes_beside_the_generator(tmp_path):
+    camera = tmp_path / "my_camera"          # a WORD directory: another seed's renders stand in for your images
+    camera.mkdir()
+    build_dataset(synword_cfg(frames=4), SEED + 1, camera)
+    theirs = open_dataset(camera).records
+    syn = synword_cfg(frames=4)
+    syn.update(use={"train": "train", "val": None, "test": None}, train_share=None, max_repeat=None)
+    cfg = {"name": "mixed", "max_easy_vehicles": 3, "sources": {"synword": syn, "yours": yours_cfg(camera)}}
+    out = tmp_path / "out"
+    out.mkdir()
+    metrics = build_dataset(cfg, SEED, out)
+    ds = open_dataset(out)                                               # every record validated on read
+    source = {r.image: r.extra["data_source"] for r in ds.records}
+    assert {source[i] for i in ds.splits["train"]} == {"synword", "yours"}
+    assert {source[i] for i in ds.splits["val"]} == {"yours"} and {source[i] for i in ds.splits["test"]} == {"yours"}
+    mine = {r.image: r for r in ds.records if source[r.image] == "yours"}
+    assert sorted(mine) == sorted(f"yours/{r.image}" for r in theirs) and metrics["data.yours.images"] == len(theirs)
+    for rec in theirs:                                                   # the images linked in, frames moved clear
+        linked = mine[f"yours/{rec.image}"]
+        assert (out / linked.image).read_bytes() == (camera / rec.image).read_bytes()
+        assert linked.frame_id == rec.frame_id + 1_000_000 and linked.relations == rec.relations
+    assert (out / "artifacts" / "contact_sheet_yours.png").is_file()
+
+    same_frames = dict(cfg, sources={"synword": syn, "yours": dict(yours_cfg(camera), first_frame=0)})
+    with pytest.raises(DatasetError, match=r"data.sources.yours.*also source 'synword'.*another first_frame"):
+        build_sources(same_frames, SEED, tmp_path / "same_frames")
+    with pytest.raises(ValueError, match=r"data.sources.yours.root: the WORD directory"):
+        build_sources(dict(cfg, sources={"synword": syn, "yours": dict(yours_cfg(camera), root="???")}), SEED,
+                      tmp_path / "no_root")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="labels.jsonl"):
+        build_sources(dict(cfg, sources={"synword": syn, "yours": yours_cfg(tmp_path / "empty")}), SEED,
+                      tmp_path / "no_labels")
