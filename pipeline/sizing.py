@@ -122,15 +122,25 @@ def _memo_lock(cache_root: Path):
     lock lives in the temporary directory, not the cache: sizing comes before the config checks, and a bad config
     must leave no cache behind. (Sizing is per host, and so is the lock.)"""
     digest = hashlib.sha256(str(cache_root.absolute()).encode()).hexdigest()[:16]
-    try:
-        fd = os.open(Path(tempfile.gettempdir()) / f"pipeline-sizing-{digest}.lock", os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError:  # no writable temporary directory: size without the lock
-        yield
-        return
-    try:
+    path = Path(tempfile.gettempdir()) / f"pipeline-sizing-{digest}.lock"
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError:  # no writable temporary directory: size without the lock
+            yield
+            return
         fcntl.flock(fd, fcntl.LOCK_EX)
+        try:  # the holder before us removes the file as it leaves: then ours is a stale inode, open the new one
+            if os.fstat(fd).st_ino == os.stat(path).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    try:
         yield
     finally:
+        with contextlib.suppress(OSError):  # removed while held, so no lock file is left behind in the tempdir
+            path.unlink()
         os.close(fd)  # closing releases the flock
 
 

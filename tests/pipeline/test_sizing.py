@@ -1,7 +1,10 @@
 """The ``size`` hook: a budget sized to the host at plan time, set in the config as if given on the command line
 (the key, the stage and the params see it), printed, logged as ``sized.<key>``, remembered per host and config."""
 
+import hashlib
 import sqlite3
+import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -123,3 +126,5 @@ def test_processes_sizing_side_by_side_probe_once_and_agree(toy):
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
         values = list(pool.map(_size_in_a_process, [cfg, cfg], [toy.root / "cache"] * 2))
     assert values == [5, 5] and _probes(toy) == 1, "the second waited for the first and read its answer"
+    digest = hashlib.sha256(str((toy.root / "cache").absolute()).encode()).hexdigest()[:16]
+    assert not (Path(tempfile.gettempdir()) / f"pipeline-sizing-{digest}.lock").exists(), "no lock file left behind"
