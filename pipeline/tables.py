@@ -50,11 +50,12 @@ def paired_difference(diffs: list[float]) -> str:
     return f"{mean:+.2f} ± {statistics.stdev(diffs) / len(diffs) ** 0.5:.2f}"
 
 
-def save_figure(fig, path: Path) -> None:
-    """Lay out, write as PNG (creating the folder) and close a matplotlib figure."""
+def save_figure(fig, path: Path, rect: tuple[float, float, float, float] = (0, 0, 1, 1)) -> None:
+    """Lay out (the axes within ``rect`` of the figure: room for a legend beside them), write as PNG (creating the
+    folder) and close a matplotlib figure."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
