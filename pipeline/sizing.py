@@ -119,8 +119,8 @@ def size_stages(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfi
 def _memo_lock(cache_root: Path):
     """One process at a time reads, probes and writes the memo: the jobs of a parallel sweep would otherwise probe
     side by side, each under the others' load, and size one shared stage differently (two keys, two trainings). The
-    lock lives in the temporary directory, not the cache: sizing comes before the config checks, and a bad config
-    must leave no cache behind. (Sizing is per host, and so is the lock.)"""
+    lock lives in the temporary directory, not the cache: a run whose sizing fails must leave no cache behind. (Sizing
+    is per host, and so is the lock.)"""
     digest = hashlib.sha256(str(cache_root.absolute()).encode()).hexdigest()[:16]
     path = Path(tempfile.gettempdir()) / f"pipeline-sizing-{digest}.lock"
     while True:

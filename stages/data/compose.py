@@ -2,15 +2,16 @@
 
 Each source is built as its own config would build it, into the one output directory: ``synword`` (the generator,
 split by frame as ``data=synword`` splits it: the same records and the same seed give the same splits), ``pool``
-(N images of a new domain's pool, ``stages.data.pool``) and ``word`` (a WORD directory on disk, its images linked in,
-split by frame as ``data=word`` splits it: ``stages.data.word_source``). A source's ``use`` says which of its own splits feed each
-composed split (``{train: train, val: val, test: null}``: its test images are not used). ``train_share`` repeats a
-source's train images (whole copies, at most ``max_repeat``) until they make about that share of the composed train
-split: a few new images beside ~1,000 generated ones would otherwise weigh next to nothing. The easy / hard / mixed
-subsets are drawn from the composed test split as for any dataset.
+(N images of a new domain's pool, ``stages.data.pool``) and ``word`` (a WORD directory on disk, its images linked
+in, split by frame as ``data=word`` splits it: ``stages.data.word_source``). A source's ``use`` says which of its own
+splits feed each composed split (``{train: train, val: val, test: null}``: its test images are not used).
+``train_share`` repeats a source's train images (whole copies, at most ``max_repeat``) until they make about that
+share of the composed train split: a few new images beside ~1,000 generated ones would otherwise weigh next to
+nothing. The easy / hard / mixed subsets are drawn from the composed test split as for any dataset.
 
 Sources must not share an image path or a frame index (the pool's and a WORD directory's frames start at
-``first_frame``): every stage keys records by image and groups cameras by frame. Every record carries its source's name (``data_source``).
+``first_frame``): every stage keys records by image and groups cameras by frame. Every record carries its source's
+name (``data_source``).
 """
 
 from __future__ import annotations
