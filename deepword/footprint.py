@@ -234,19 +234,18 @@ class Shape:
         for them thousands of times); read-only."""
         return _shape_points(self)
 
-    def _points(self) -> tuple[np.ndarray, np.ndarray]:
-        lower = _cuboid(((-0.5, 0.0), (0.5, 0.0)), (0.5, 0.0), ((0.0, self.clearance), (self.belt, 0.0)))
-        cx0, cx1 = self.cabin_x - self.cabin_length / 2, self.cabin_x + self.cabin_length / 2
-        cabin = _cuboid(((cx0, 0.0), (cx1, 0.0)), (0.5, -0.08), ((self.belt, 0.0), (1.0, 0.0)))
-        half = self.wheelbase / 2
-        wheels = (np.array([[sx * half, sy * 0.5, 0.0] for sx in (1, -1) for sy in (1, -1)]),
-                  np.array([[0.0, -sy * 0.1, 0.0] for _ in (1, -1) for sy in (1, -1)]))
-        return (np.concatenate([lower[0], cabin[0], wheels[0]]), np.concatenate([lower[1], cabin[1], wheels[1]]))
-
 
 @functools.cache
 def _shape_points(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
-    coef, off = shape._points()
+    """``Shape.points``, computed once per shape (shapes are frozen and few)."""
+    lower = _cuboid(((-0.5, 0.0), (0.5, 0.0)), (0.5, 0.0), ((0.0, shape.clearance), (shape.belt, 0.0)))
+    cx0, cx1 = shape.cabin_x - shape.cabin_length / 2, shape.cabin_x + shape.cabin_length / 2
+    cabin = _cuboid(((cx0, 0.0), (cx1, 0.0)), (0.5, -0.08), ((shape.belt, 0.0), (1.0, 0.0)))
+    half = shape.wheelbase / 2
+    wheels = (np.array([[sx * half, sy * 0.5, 0.0] for sx in (1, -1) for sy in (1, -1)]),
+              np.array([[0.0, -sy * 0.1, 0.0] for _ in (1, -1) for sy in (1, -1)]))
+    coef = np.concatenate([lower[0], cabin[0], wheels[0]])
+    off = np.concatenate([lower[1], cabin[1], wheels[1]])
     coef.flags.writeable = off.flags.writeable = False
     return coef, off
 

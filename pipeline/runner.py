@@ -308,12 +308,14 @@ def run_pipeline(cfg: DictConfig, run_dir: Path | None = None, in_process_tracki
     return summary
 
 
-def _checks_before_sizing(spec: StageSpec, cfg: DictConfig) -> tuple:
-    """The stage's checks, less those of a stage with a size hook on a key it leaves as a word for the hook."""
+def _split_checks(spec: StageSpec, cfg: DictConfig) -> tuple[tuple, tuple]:
+    """The stage's checks to make before sizing, and those on a key a stage with a size hook leaves as a word
+    (``auto``) for its hook, made once it is sized."""
     if spec.size is None:
-        return spec.checks
-    return tuple((key, rules) for key, rules in spec.checks
-                 if not isinstance(OmegaConf.select(cfg, key, default=None), str))
+        return spec.checks, ()
+    later = tuple((key, rules) for key, rules in spec.checks
+                  if isinstance(OmegaConf.select(cfg, key, default=None), str))
+    return tuple(c for c in spec.checks if c not in later), later
 
 
 def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launch_dir, overrides,
@@ -323,16 +325,17 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     selected, left_out = select_stages(specs, settings["until"], settings["skip"])
     # Checked before the size hooks: a probe takes seconds and writes the memo, and a bad value elsewhere must stop
     # the run first. A checked key that a sized stage leaves as a word (``auto``) is the hook's to fill: checked after.
+    after_sizing = {}
     for name in selected:
-        check_values(cfg, name, _checks_before_sizing(specs[name], cfg))
+        now, after_sizing[name] = _split_checks(specs[name], cfg)
+        check_values(cfg, name, now)
     if settings["require_server"]:
         check_server(settings["uri"])
     cfg, sized = size_stages(specs, selected, cfg, settings["cache_dir"], _context(settings))
     if sized:
         _say(format_sized(sized, settings["cache_dir"]))
-    for name in selected:
-        if specs[name].size is not None:
-            check_values(cfg, name, specs[name].checks)
+    for name, checks in after_sizing.items():
+        check_values(cfg, name, checks)
     if in_process_tracking is None:  # decided now: a resolve hook may import MLflow while planning
         in_process_tracking = "mlflow" in sys.modules
     budget = time_budget(cfg)
@@ -494,9 +497,10 @@ class _RankZeroWatch:
         if state.get("error"):
             raise PipelineError(f"{self.rank.described}: rank 0 of launch {self.rank.launch_id} failed "
                                 f"({state['error']}); this rank stops too")
-        theirs, mine = state.get("plan") or {}, self.my_plan or {}
-        differ = sorted(s for s in set(theirs) | set(mine) if theirs.get(s) != mine.get(s))
-        if theirs and self.my_plan is not None and differ:
+        theirs, mine = state.get("plan") or {}, self.my_plan
+        differ = [] if not theirs or mine is None else sorted(
+            s for s in set(theirs) | set(mine) if theirs.get(s) != mine.get(s))
+        if differ:
             raise PipelineError(
                 f"{self.rank.described}: rank 0 planned other cache keys for stage(s) {differ}: the ranks run "
                 "different code or config (check every node has the same checkout and command line)")

@@ -17,7 +17,7 @@ BOXES = {"gt": "ground truth", "detected": "detected"}
 # (metric key, column): the detection scores of one subset (design.md §7).
 SCORES = (("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("ase", "ASE"), ("aoe_deg", "AOE 360° (°)"),
           ("aoe180_deg", "AOE mod 180° (°)"), ("recall", "recall (%)"), ("precision", "precision (%)"))
-PAIRED = ("paired.center_err_m", "median centre error, two same-side wheels (m)")
+PAIRED = ("paired", "center_err_m", "median centre error, two same-side wheels (m)")
 SUBSETS = {"all": "all within range", "two_wheels": "two wheels", "one_wheel": "one wheel", "no_wheel": "no wheel",
            "0-5m": "0–5 m", "5-10m": "5–10 m", "10-20m": "10–20 m"}
 SUBSET_SCORES = (("vehicles", "vehicles"), ("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("aoe_deg", "AOE 360° (°)"),
@@ -25,17 +25,22 @@ SUBSET_SCORES = (("vehicles", "vehicles"), ("ap", "AP (%)"), ("ate_m", "ATE (m)"
 NEEDED = "bev.gt.deepword.all.ap"
 
 
+def score(metrics: dict[str, float], domain: str, boxes: str, method: str, subset: str, key: str) -> float | None:
+    """One footprint score of a run, ``bev.[shift.]<boxes>.<method>.<subset>.<metric>`` (design.md §7), or None."""
+    return metrics.get(f"bev.{domain}{boxes}.{method}.{subset}.{key}")
+
+
 def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
     """The two tables of the newest run (``runs``: newest first) with footprint detection scores."""
     run = next((r for r in runs if NEEDED in r.metrics), None)
     m = run.metrics if run else {}
-    header = ["Domain", "Boxes", "Method", *(label for _, label in SCORES), PAIRED[1]]
+    header = ["Domain", "Boxes", "Method", *(label for _, label in SCORES), PAIRED[2]]
     rows = []
     for domain, domain_label in DOMAINS.items():
         for boxes, boxes_label in BOXES.items():
             for method, label in METHODS.items():
-                prefix = f"bev.{domain}{boxes}.{method}."
-                cells = [m.get(f"{prefix}all.{k}") for k, _ in SCORES] + [m.get(prefix + PAIRED[0])]
+                cells = [score(m, domain, boxes, method, "all", k) for k, _ in SCORES]
+                cells.append(score(m, domain, boxes, method, *PAIRED[:2]))
                 if any(c is not None for c in cells):
                     rows.append([domain_label, boxes_label, label, *cells])
     if run is None:
@@ -53,8 +58,7 @@ def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
     header = ["Vehicles", *(f"{label} {d}" for d in DOMAINS.values() for _, label in SUBSET_SCORES)]
     rows = []
     for subset, label in SUBSETS.items():
-        cells = [_count(m.get(f"bev.{domain}detected.{e2e}.{subset}.{k}"), k) for domain in DOMAINS
-                 for k, _ in SUBSET_SCORES]
+        cells = [_count(score(m, domain, "detected", e2e, subset, k), k) for domain in DOMAINS for k, _ in SUBSET_SCORES]
         if any(c is not None for c in cells):
             rows.append([label, *cells])
     populations = Table(f"Bird's-eye view, end to end (`{e2e}` on detected boxes), by wheels seen and distance",

@@ -11,6 +11,7 @@ from pipeline.runs import RunRecord
 from pipeline.tables import Table
 from stages.tables.adapt import adapt_points, end_to_end_method
 from stages.tables.adapt_base import is_default_run
+from stages.tables.bev import score
 
 HEADLINE_BEGIN = "<!-- headline by make compare: begin -->"
 HEADLINE_END = "<!-- headline by make compare: end -->"
@@ -72,10 +73,10 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
 def _bev_note(metrics: dict[str, float], method: str) -> str | None:
     """The footprints of the end-to-end method, scored the nuScenes way within range (docs/bev.md), or None."""
     def scores(domain: str) -> str | None:
-        keys = [f"bev.{domain}detected.{method}.all.{k}" for k in ("ap", "ate_m", "aoe_deg", "aoe180_deg")]
-        if any(k not in metrics for k in keys):
+        values = [score(metrics, domain, "detected", method, "all", k) for k in ("ap", "ate_m", "aoe_deg", "aoe180_deg")]
+        if None in values:
             return None
-        ap, ate, aoe, aoe180 = (metrics[k] for k in keys)
+        ap, ate, aoe, aoe180 = values
         return f"AP {ap:.1f}, ATE {ate:.2f} m, AOE {aoe:.1f}° over 360° ({aoe180:.1f}° modulo 180°)"
     here, held_out = scores(""), scores("shift.")
     if here is None:
