@@ -24,7 +24,10 @@ driving in a lane are parallel.
 ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
 (a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
 vehicle's front and the estimate is ``directed``; otherwise (``box``: the cabin's fit picks the sign, a guess;
-wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg.
+wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. A detector with the
+facing head says for each vehicle box which way its front lies in the image (deepword/facing.py); each estimate's
+``facing_vote`` weighs how well its heading, projected through its camera, agrees (``facing_vote``), and the fusion
+sums those votes with the roles' (``heading_vote``).
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
 scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
@@ -46,6 +49,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from deepword.cameras import BOX_TO_IMAGE, Camera
+from deepword.facing import image_facing, record_facing
 from deepword.format_3d import Box3D
 from deepword.word_format import VEHICLE, WHEEL, Record
 
@@ -107,6 +111,7 @@ class Estimate:
     image: str
     confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
     role_vote: float = 0.0   # log-odds, from the wheels' roles, that ``box.yaw`` points to the front (0: no roles)
+    facing_vote: float = 0.0  # log-odds, from the detector's facing vector, that ``box.yaw`` points to the front
 
     @property
     def rank(self) -> int:
@@ -114,8 +119,9 @@ class Estimate:
 
     @property
     def directed(self) -> bool:
-        """The wheels' roles voted for the heading's direction (else only the axis came from the wheels)."""
-        return self.role_vote != 0.0
+        """The wheels' roles or the detector's facing voted for the heading's direction (else only the axis came from
+        the wheels or the box)."""
+        return self.role_vote != 0.0 or self.facing_vote != 0.0
 
 
 # --- image points -> ground ---------------------------------------------------------------------------
@@ -497,6 +503,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y)); ``weak=False``: only
     the vehicles resting on two or more wheels."""
     by_id = {int(b[6]): b for b in rec.boxes}
+    facings = record_facing(rec) if use_relations else {}
     owner = rec.owner_of() if use_relations else {}
     roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
     # a role head lists couples rear first: their order is a (weak) vote when the relations carry roles
@@ -559,7 +566,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             if used:
                 conf *= float(np.mean([by_id[w][4] for w in used]))
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
-                                confidence=conf, role_vote=vote))
+                                confidence=conf, role_vote=vote, facing_vote=facing_vote(cam, box, facings.get(vid))))
     return out
 
 
@@ -613,11 +620,37 @@ def heading_prior_logit(prior: FootprintPrior | None, box: Box3D) -> float:
     return logit if facing else -logit
 
 
+# How far the detector's facing is trusted: log-odds that a facing vector of length 1 points the right way. Measured
+# on the quick profile's val split (ground-truth vehicle centres; docs/bev.md, "Which way a vehicle faces"): the
+# facing head points within 90 deg of the truth for FACING_VAL_ACC of the vehicles.
+FACING_VAL_ACC = 0.95
+FACING_LOGIT = math.log(FACING_VAL_ACC / (1 - FACING_VAL_ACC))
+
+
+def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None) -> float:
+    """Log-odds, from the detector's facing vector of the vehicle box (``deepword.facing``: image pixels, its length
+    the head's certainty), that ``box.yaw`` points to the front: ``FACING_LOGIT`` x the cosine between it and the
+    image direction of ``box``'s own heading through ``cam``, x its length (at most 1). 0 without a vector or where
+    the heading's image direction is not defined."""
+    if facing is None:
+        return 0.0
+    f = np.asarray(facing, dtype=np.float64)
+    strength = float(np.hypot(f[0], f[1]))
+    if not strength > 1e-6:
+        return 0.0
+    d = image_facing(cam, box.x, box.y, box.yaw, box.length, box.height)
+    if d is None:
+        return 0.0
+    return FACING_LOGIT * float(np.dot(d, f)) / strength * min(strength, 1.0)
+
+
 def heading_vote(box: Box3D, group: list[Estimate], prior: FootprintPrior | None) -> float:
-    """Log-odds that ``box.yaw`` points to the front: the roles' votes of the estimates of one vehicle (every camera
-    that saw it), each turned to ``box``'s axis, plus where it stands (``heading_prior_logit``)."""
-    roles = sum(e.role_vote * math.copysign(1.0, math.cos(e.box.yaw - box.yaw)) for e in group if e.role_vote)
-    return roles + heading_prior_logit(prior, box)
+    """Log-odds that ``box.yaw`` points to the front: the roles' and the detector's facing votes of the estimates of
+    one vehicle (every camera that saw it), each turned to ``box``'s axis, plus where it stands
+    (``heading_prior_logit``)."""
+    votes = sum((e.role_vote + e.facing_vote) * math.copysign(1.0, math.cos(e.box.yaw - box.yaw))
+                for e in group if e.directed)
+    return votes + heading_prior_logit(prior, box)
 
 # --- a frame's cameras ----------------------------------------------------------------------------------
 
@@ -700,9 +733,12 @@ def frame_footprints(views: list[tuple[Record, Camera]], prior: FootprintPrior, 
 def footprint_json(box: Box3D, group: list[Estimate]) -> dict:
     """One fused footprint as the bev stage's ``footprints/*.jsonl`` and ``deepword infer``'s ``footprints.jsonl``
     write it: the box, the evidence it rests on, the cameras that saw it, its confidence and where its heading's
-    direction came from (``roles``: the wheels' roles voted, with the prior; ``axis``: the prior alone, or nothing)."""
+    direction came from (``facing``: the detector's facing voted, with any roles and the prior; ``roles``: the wheels'
+    roles voted, with the prior; ``axis``: the prior alone, or nothing)."""
+    heading_from = ("facing" if any(e.facing_vote for e in group) else
+                    "roles" if group_directed(group) else "axis")
     return {**box.to_json(), "evidence": group[0].evidence, "seen_by": sorted({e.camera for e in group}),
-            "confidence": round(group_confidence(group), 4), "heading_from": "roles" if group_directed(group) else "axis"}
+            "confidence": round(group_confidence(group), 4), "heading_from": heading_from}
 
 
 def write_footprints(path, fused: dict[int, list[tuple[Box3D, list[Estimate]]]]) -> None:

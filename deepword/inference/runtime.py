@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from deepword.detection.letterbox import preprocess
-from deepword.detection.records import detections_to_record
+from deepword.detection.records import detections_to_record, renumbered
 from deepword.inference.decode import decode_couples, decode_owners, prediction_record
 from deepword.priors import load_priors
 from deepword.relation_graph import InputConfig, build_graph, mirrored
@@ -45,6 +45,12 @@ RELATION_OUTPUTS = ("owner", "couple", "front")
 DETECTOR_INPUT = "images"
 # the detector graph's outputs by its box regression (detector.regression); the runtime reads "detections"
 DETECTOR_OUTPUTS = {"centernet": ("heatmap", "wh", "reg", "detections"), "ttfnet": ("heatmap", "ltrb", "detections")}
+
+
+def detector_outputs(regression: str, facing: bool) -> tuple[str, ...]:
+    """The detector graph's output names: ``DETECTOR_OUTPUTS``' maps, the facing map after them with the facing head."""
+    names = DETECTOR_OUTPUTS[regression]
+    return (*names[:-1], "facing", names[-1]) if facing else names
 # Which relation model a method name runs (evaluate rows and ``deepword infer --method``).
 METHOD_VARIANTS = {"deepword": "dynamic", "deepword_int8": "int8"}
 
@@ -277,7 +283,4 @@ class OnnxDetector:
         left out (the record itself when this detector has no operating point)."""
         if self.class_thresholds is None:
             return record
-        kept = keep_at(record, self.class_thresholds, self.class_min_sides)
-        # ids 0..N-1 again, as every detection record has them
-        kept.boxes[:, 6] = np.arange(len(kept.boxes))
-        return kept
+        return renumbered(keep_at(record, self.class_thresholds, self.class_min_sides))

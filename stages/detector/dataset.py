@@ -33,7 +33,13 @@ from stages.detector.augment import (
     sensor_effects,
 )
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
-from stages.detector.targets import centernet_targets, ttfnet_box_targets
+from stages.detector.targets import box_facings, centernet_targets, facing_targets, ttfnet_box_targets
+
+
+def box_labels(record: Record, facings: np.ndarray, flipped: bool) -> np.ndarray:
+    """(N, 3) per box: class id, facing x, facing y; a mirrored image's facings point the other way in x."""
+    facings = np.asarray(facings, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([record.class_ids, -facings[:, 0] if flipped else facings[:, 0], facings[:, 1]])
 
 
 def max_objects_of(records: list[Record]) -> int:
@@ -78,14 +84,15 @@ class CenterNetDataset(Dataset):
         # Switched off for the last epochs by ``lightning.CloseMosaic``; in shared memory so that loader workers
         # (forked once, persistent) see the switch too.
         self.mosaic_open = torch.ones((), dtype=torch.bool).share_memory_()
-        self._cache: dict[int, tuple[np.ndarray, Record]] = {}
+        self._cache: dict[int, tuple[np.ndarray, Record, np.ndarray]] = {}
 
     def __len__(self) -> int:
         return len(self.records)
 
-    def letterboxed(self, index: int) -> tuple[np.ndarray, Record]:
-        """The record's image letterboxed to the input size (uint8, cached) and the record of that image:
-        boxes in input pixels, width and height the input size."""
+    def letterboxed(self, index: int) -> tuple[np.ndarray, Record, np.ndarray]:
+        """The record's image letterboxed to the input size (uint8, cached), the record of that image (boxes in input
+        pixels, width and height the input size) and its boxes' facing vectors (``targets.box_facings``: (N, 2), NaN
+        where unknown; a letterbox scales both axes alike, so they hold in the input too)."""
         if index not in self._cache:
             self._cache[index] = self._letterbox_uncached(index)
         return self._cache[index]
@@ -108,19 +115,22 @@ class CenterNetDataset(Dataset):
         plan-time probe's synthetic images (stages/estimate)."""
         self._cache[index] = self._letterboxed(image, self.records[index])
 
-    def _letterbox_uncached(self, index: int) -> tuple[np.ndarray, Record]:
+    def _letterbox_uncached(self, index: int) -> tuple[np.ndarray, Record, np.ndarray]:
         record = self.records[index]
         return self._letterboxed(load_image(self.root, record), record)
 
-    def _letterboxed(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, Record]:
+    def _letterboxed(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, Record, np.ndarray]:
         box = letterbox_for(record.width, record.height, self.input_width, self.input_height)
         boxes = record.boxes.copy()
         boxes[:, :4] = boxes_to_input(record.xyxy, box)
         inside = dataclasses.replace(record, boxes=boxes, width=self.input_width, height=self.input_height)
-        return letterbox_image(image, box), inside
+        return letterbox_image(image, box), inside, box_facings(record)
 
-    def augmented(self, image: np.ndarray, record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(augmented image, its boxes (N, 4), their classes) from a letterboxed image and its record."""
+    def augmented(self, image: np.ndarray, record: Record,
+                  facings: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(augmented image, its boxes (N, 4), their classes, their facing vectors (N, 2)) from a letterboxed image,
+        its record and its boxes' facing vectors. The boxes' labels (class, facing x, facing y) travel together, so
+        that a crop's or a mosaic's dropped boxes drop their facings too."""
         # Drawn from torch's generator so that Lightning's seed_everything (and its per-worker seeding)
         # makes the augmentation reproducible.
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, ()).item()))
@@ -128,16 +138,16 @@ class CenterNetDataset(Dataset):
         mosaic = aug.get("mosaic", 0.0)
         # no draw when off or closed: a detector configured without mosaic trains as it did before mosaic existed
         if mosaic > 0 and bool(self.mosaic_open) and rng.random() < mosaic:
-            image, xyxy, classes = self.mosaic(image, record, rng)  # already the training window
+            image, xyxy, labels = self.mosaic(image, record, facings, rng)  # already the training window
         else:
-            image, xyxy, classes = self.flipped_rescaled(image, record, rng)
+            image, xyxy, labels = self.flipped_rescaled(image, record, facings, rng)
             origin = self.window_origin(rng, image.shape[1], image.shape[0])
             if origin is not None:
-                image, xyxy, classes = self.window(image, xyxy, classes, *origin, *self.window_size)
+                image, xyxy, labels = self.window(image, xyxy, labels, *origin, *self.window_size)
         image = photometric_jitter(image, rng, aug["brightness"], aug["contrast"], aug["saturation"], aug.get("hue", 0.0))
         image = sensor_effects(image, rng, aug.get("blur", 0.0), aug.get("noise", 0.0), aug.get("jpeg", 0.0),
                                aug.get("grayscale", 0.0))
-        return image, xyxy, classes
+        return image, xyxy, labels[:, 0].astype(int), labels[:, 1:3]
 
     @property
     def window_size(self) -> tuple[int, int]:
@@ -154,12 +164,13 @@ class CenterNetDataset(Dataset):
         y0 = int(rng.integers(min(0, height - ch), max(0, height - ch) + 1))
         return x0, y0
 
-    def window(self, image: np.ndarray, xyxy: np.ndarray, classes: np.ndarray, x0: int, y0: int, width: int,
+    def window(self, image: np.ndarray, xyxy: np.ndarray, labels: np.ndarray, x0: int, y0: int, width: int,
                height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The ``width`` x ``height`` window at (x0, y0) of an image (padded where it leaves it) with the boxes seen
-        through it: those less than ``crop_min_visible`` inside are dropped (``crop_boxes``)."""
+        through it and their labels (``box_labels``): those less than ``crop_min_visible`` inside are dropped
+        (``crop_boxes``)."""
         kept, keep = crop_boxes(xyxy, x0, y0, width, height, self.augment.get("crop_min_visible", 0.5))
-        return crop_or_pad(image, x0, y0, width, height, PAD_VALUE), kept, classes[keep]
+        return crop_or_pad(image, x0, y0, width, height, PAD_VALUE), kept, labels[keep]
 
     def flip_and_scale(self, rng: np.random.Generator, shrink: float = 1.0) -> tuple[bool, float]:
         """The geometric draws of one image: a horizontal flip, and a random scale times ``shrink`` (1.0, and no
@@ -172,16 +183,16 @@ class CenterNetDataset(Dataset):
             return flip, float(rng.uniform(low, high)) * shrink
         return flip, 1.0
 
-    def flipped_rescaled(self, image: np.ndarray, record: Record,
+    def flipped_rescaled(self, image: np.ndarray, record: Record, facings: np.ndarray,
                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One image through its geometric draws (``flip_and_scale``). Returns (image, boxes, classes)."""
+        """One image through its geometric draws (``flip_and_scale``). Returns (image, boxes, labels)."""
         flip, factor = self.flip_and_scale(rng)
         if flip:
             image, record = flip_image(image), flip_record(record)
         image, xyxy = rescale(image, record.xyxy, factor)
-        return image, xyxy, record.class_ids
+        return image, xyxy, box_labels(record, facings, flip)
 
-    def mosaic(self, image: np.ndarray, record: Record,
+    def mosaic(self, image: np.ndarray, record: Record, facings: np.ndarray,
                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """YOLOv4's mosaic, cut to the training window: this image and three others drawn from the dataset, each
         flipped and rescaled on its own, meet at a random point of a canvas twice the window's size, each filling
@@ -202,15 +213,16 @@ class CenterNetDataset(Dataset):
         xc = int(rng.integers(width // 4, 3 * width // 4 + 1))
         yc = int(rng.integers(height // 4, 3 * height // 4 + 1))
         others = rng.integers(0, len(self.records), 3)
-        sources = [(image, record)] + [self.letterboxed(int(i)) for i in others]
+        sources = [(image, record, facings)] + [self.letterboxed(int(i)) for i in others]
         draws = [self.flip_and_scale(rng, shrink) for _ in sources]
         wx0, wy0 = self.window_origin(rng, width, height) or (0, 0)
         out = np.empty((ch, cw, 3), dtype=np.uint8)
         out[:] = PAD_VALUE
         min_visible = self.augment.get("crop_min_visible", 0.5)
-        boxes, classes = [np.zeros((0, 4))], [np.zeros(0, dtype=int)]  # a window may show no box at all
+        boxes, labels = [np.zeros((0, 4))], [np.zeros((0, 3))]  # a window may show no box at all
         quadrants = [(0, 0, xc, yc), (xc, 0, width, yc), (0, yc, xc, height), (xc, yc, width, height)]
-        for (source, source_record), (flip, factor), (x0, y0, x1, y1) in zip(sources, draws, quadrants, strict=True):
+        for (source, source_record, source_facings), (flip, factor), (x0, y0, x1, y1) in zip(sources, draws, quadrants,
+                                                                                            strict=True):
             h, w = source.shape[:2]
             pw, ph = rescaled_size(w, h, factor)
             dx = xc - pw if x0 == 0 else xc  # the piece's corner nearest the meeting point sits on it
@@ -229,18 +241,19 @@ class CenterNetDataset(Dataset):
             kept, keep = crop_boxes(xyxy, x0, y0, x1 - x0, y1 - y0, min_visible)
             kept, keep_window = crop_boxes(kept + [x0, y0, x0, y0], wx0, wy0, cw, ch, min_visible)
             boxes.append(kept)
-            classes.append(source_record.class_ids[keep][keep_window])
-        return out, np.concatenate(boxes), np.concatenate(classes)
+            labels.append(box_labels(source_record, source_facings, flip)[keep][keep_window])
+        return out, np.concatenate(boxes), np.concatenate(labels)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
-        image, record = self.letterboxed(index)
+        image, record, facings = self.letterboxed(index)
         if self.augment is not None:
-            image, xyxy, classes = self.augmented(image, record)
+            image, xyxy, classes, facings = self.augmented(image, record, facings)
         else:
             xyxy, classes = record.xyxy, record.class_ids
         height, width = image.shape[:2]
         targets = centernet_targets(xyxy / DOWN_RATIO, classes, len(CLASS_NAMES), width // DOWN_RATIO,
                                     height // DOWN_RATIO, self.max_objects, self.min_overlap)
+        targets |= facing_targets(facings, targets["mask"])
         if self.regression == "ttfnet":
             targets |= ttfnet_box_targets(xyxy, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
         item = {k: torch.from_numpy(v) for k, v in targets.items()}

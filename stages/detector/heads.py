@@ -1,6 +1,7 @@
 """The detector's output heads, each Conv3x3 -> ReLU -> Conv1x1: the class heatmap, then the box regression of
 ``detector.regression``: CenterNet's box size and centre offset at the centre cell, or TTFNet's distances
-from each cell's centre to the four sides of its box."""
+from each cell's centre to the four sides of its box; with ``detector.facing``, last, the facing map: at a vehicle's
+centre cell the image direction from its rear to its front (deepword/facing.py)."""
 
 from __future__ import annotations
 
@@ -28,9 +29,10 @@ def head(c_in: int, head_conv: int, c_out: int) -> nn.Sequential:
 class CenterNetHeads(nn.Module):
     """Heatmap (one channel per class, clamped sigmoid) and the regression maps: ``centernet``: size (w, h)
     in output cells and offset (dx, dy); ``ttfnet``: one map of distances (left, top, right, bottom) in input
-    pixels."""
+    pixels; ``facing``: then a map of (dx, dy), read at vehicle centres."""
 
-    def __init__(self, c_in: int, head_conv: int, num_classes: int, regression: str = "centernet"):
+    def __init__(self, c_in: int, head_conv: int, num_classes: int, regression: str = "centernet",
+                 facing: bool = False):
         super().__init__()
         if regression not in REGRESSIONS:
             raise ValueError(f"detector.regression: unknown {regression!r} (have {', '.join(REGRESSIONS)})")
@@ -44,15 +46,27 @@ class CenterNetHeads(nn.Module):
         else:
             self.ltrb = head(c_in, head_conv, 4)
             branches = (self.ltrb,)
+        self.facing = head(c_in, head_conv, 2) if facing else None
         bias = LTRB_BIAS if regression == "ttfnet" else 0.0
         for branch in branches:
             nn.init.normal_(branch[-1].weight, std=0.001)
             nn.init.constant_(branch[-1].bias, bias)
+        if self.facing is not None:  # starts near (0, 0): no opinion, which the footprints read as no vote
+            nn.init.normal_(self.facing[-1].weight, std=0.001)
+            nn.init.constant_(self.facing[-1].bias, 0.0)
+
+    @property
+    def has_facing(self) -> bool:
+        return self.facing is not None
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         # In fp32 even under bf16 autocast: bf16 rounds 1 - 1e-4 to 1 (log(1 - p) = -inf in the focal loss),
         # and its 8-bit mantissa would put decoded box corners ~2 input pixels off.
         heat = torch.clamp(torch.sigmoid(self.hm(x).float()), HEATMAP_EPS, 1 - HEATMAP_EPS)
         if self.regression == "centernet":
-            return heat, self.wh(x).float(), self.reg(x).float()
-        return heat, torch.relu(self.ltrb(x).float()) * LTRB_BASE
+            boxes = (self.wh(x).float(), self.reg(x).float())
+        else:
+            boxes = (torch.relu(self.ltrb(x).float()) * LTRB_BASE,)
+        if self.facing is None:
+            return heat, *boxes
+        return heat, *boxes, self.facing(x).float()

@@ -14,8 +14,7 @@ from deepword.detection.average_precision import coco_average_precision
 from deepword.detection.letterbox import MEAN, STD, letterbox_for
 from deepword.word_format import Record
 from stages.detector.dataset import CenterNetDataset, max_objects_of
-from stages.detector.decode import decode_outputs
-from stages.detector.losses import detector_loss
+from stages.detector.losses import detector_loss, facing_agreement
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO, build_centernet
 from stages.detector.predict import detections_to_record
 from stages.training.loader_workers import usable_cores
@@ -63,6 +62,7 @@ class CenterNetModule(L.LightningModule):
         self.ap_min_box_px = ap_min_box_px
         self._val_detections: list[torch.Tensor] = []
         self._val_indices: list[torch.Tensor] = []
+        self._val_facing: list[torch.Tensor] = []
         self.frozen: tuple[str, ...] = ()
 
     def freeze(self, parts) -> None:
@@ -95,7 +95,9 @@ class CenterNetModule(L.LightningModule):
         outputs = self(batch_to_input(batch["image"], self.memory_format))
         total, _ = self.loss(outputs, batch)
         self.log("val/loss", total, prog_bar=True, batch_size=batch["image"].shape[0], sync_dist=True)
-        self._val_detections.append(decode_outputs(outputs, k=self.k, down_ratio=DOWN_RATIO))
+        self._val_detections.append(self.net.decode(outputs, self.k)[..., :6])
+        if self.net.heads.has_facing and "facing" in batch:
+            self._val_facing.append(facing_agreement(outputs[-1], batch))
         self._val_indices.append(batch["index"])
 
     def on_validation_epoch_end(self):
@@ -118,6 +120,12 @@ class CenterNetModule(L.LightningModule):
         values = {k: (0.0 if math.isnan(v) else v) for k, v in values.items()}
         self.log_dict(values)
         self.log("val/ap50", float(np.mean([values[f"val/ap50.{c}"] for c in CLASS_NAMES])), prog_bar=True)
+        if self._val_facing:
+            # the share of val vehicles (ground-truth centres) whose facing the head points the right way, within 90 deg
+            agree = self.all_gather(torch.cat(self._val_facing).sum(0)).reshape(-1, 2).sum(0)
+            self._val_facing = []
+            if float(agree[1]) > 0:
+                self.log("val/facing_acc", 100.0 * float(agree[0] / agree[1]))
 
     def configure_optimizers(self):
         # fused: the whole update in one kernel (torch >= 2.4 on CPU, CUDA), not a dozen ops per tensor: ~2 ms

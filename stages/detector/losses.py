@@ -109,13 +109,39 @@ def ttfnet_loss(outputs: tuple[torch.Tensor, torch.Tensor], batch: dict[str, tor
     return hm_weight * parts["hm"] + giou_weight * parts["giou"], parts
 
 
+def facing_loss(facing: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """L1 between the facing map read at the objects' centre cells and their unit facing vectors, over the objects
+    that have one (``targets.facing_targets``); 0 (with a gradient path) where the batch has none."""
+    if "facing" not in batch or not bool(batch["facing_mask"].any()):
+        return facing.sum() * 0.0
+    return reg_l1_loss(facing, batch["facing_mask"], batch["ind"], batch["facing"])
+
+
+def facing_agreement(facing: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(1, 2): how many of the batch's objects with a facing target the map points within 90 deg of it, and how many
+    have one (the val split's ``val/facing_acc``)."""
+    pred = gather_feat(facing.float(), batch["ind"])
+    known = batch["facing_mask"] > 0
+    right = ((pred * batch["facing"]).sum(-1) > 0) & known
+    return torch.stack([right.sum(), known.sum()]).to(torch.float32)[None]
+
+
 def detector_loss(outputs: tuple[torch.Tensor, ...], batch: dict[str, torch.Tensor], regression: str,
                   down_ratio: int, weights: dict[str, float]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """The loss of ``detector.regression`` (``centernet`` or ``ttfnet``) with its weights from
-    ``detector.loss`` (each kind reads its own: hm/wh/off or hm/giou)."""
+    ``detector.loss`` (each kind reads its own: hm/wh/off or hm/giou); outputs with one map more than the regression
+    has are the facing head's (last): ``facing_weight`` x ``facing_loss`` is added."""
+    n_boxes = {"centernet": 3, "ttfnet": 2}.get(regression)
+    if n_boxes is None:
+        raise ValueError(f"detector.regression: unknown {regression!r} (have 'centernet', 'ttfnet')")
+    boxes = tuple(outputs[:n_boxes])
     if regression == "centernet":
-        return centernet_loss(outputs, batch, weights.get("hm_weight", 1.0), weights.get("wh_weight", 0.1),
-                              weights.get("off_weight", 1.0))
-    if regression == "ttfnet":
-        return ttfnet_loss(outputs, batch, down_ratio, weights.get("hm_weight", 1.0), weights.get("giou_weight", 5.0))
-    raise ValueError(f"detector.regression: unknown {regression!r} (have 'centernet', 'ttfnet')")
+        total, parts = centernet_loss(boxes, batch, weights.get("hm_weight", 1.0), weights.get("wh_weight", 0.1),
+                                      weights.get("off_weight", 1.0))
+    else:
+        total, parts = ttfnet_loss(boxes, batch, down_ratio, weights.get("hm_weight", 1.0),
+                                   weights.get("giou_weight", 5.0))
+    if len(outputs) > n_boxes:
+        parts["facing"] = facing_loss(outputs[n_boxes], batch)
+        total = total + weights.get("facing_weight", 0.5) * parts["facing"]
+    return total, parts

@@ -22,9 +22,6 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
     import torch
 
     # imported here: it loads torch, which importing this module must not
-    from stages.detector.decode import decode_outputs
-    from stages.detector.model import DOWN_RATIO
-
     net.eval()
     device = next(net.parameters()).device
 
@@ -39,7 +36,7 @@ def predict_records(net: CenterNet, root: str | Path, records: list[Record], inp
             inputs, boxes = zip(*pool.map(prepared, chunk), strict=True)
             x = torch.from_numpy(np.stack(inputs)).to(device)
             with torch.no_grad():
-                detections = decode_outputs(net(x), k=k, down_ratio=DOWN_RATIO).cpu().numpy()
+                detections = net.decode(net(x), k).cpu().numpy()
             out += [detections_to_record(d, r, b, score_threshold)
                     for d, r, b in zip(detections, chunk, boxes, strict=True)]
     return out

@@ -68,7 +68,18 @@ def check(path: Path, state: dict, cfg) -> None:
     from stages.detector.model import build_centernet, model_config
 
     expected = build_centernet(model_config(OmegaConf.to_container(cfg.detector, resolve=True))).state_dict()
-    check_fits(expected, state, path, "init.detector", _group_of(path))
+    check_fits(without_new_facing(expected, state), state, path, "init.detector", _group_of(path))
+
+
+FACING_PREFIX = "heads.facing."
+
+
+def without_new_facing(expected: dict, state: dict) -> dict:
+    """``expected`` without the facing head's keys when ``state`` has none (a run trained before the facing head, or
+    with ``detector.facing=false``): that head alone starts from scratch; every other key must still fit."""
+    if any(k.startswith(FACING_PREFIX) for k in state):
+        return expected
+    return {k: v for k, v in expected.items() if not k.startswith(FACING_PREFIX)}
 
 
 def resolve(cfg, context) -> dict | None:
@@ -85,5 +96,9 @@ def fine_tuning(det: dict, train: dict) -> dict:
 
 
 def load_start(net, path: Path) -> None:
-    """The starting weights into ``net`` (all of them: the hook checked every key and shape at plan time)."""
-    net.load_state_dict(load_state(Path(path), DETECTOR))
+    """The starting weights into ``net`` (all of them, but a facing head the start lacks: the hook checked every key
+    and shape at plan time, ``without_new_facing``)."""
+    state = load_state(Path(path), DETECTOR)
+    missing, unexpected = net.load_state_dict(state, strict=False)
+    if unexpected or any(not k.startswith(FACING_PREFIX) for k in missing):
+        net.load_state_dict(state)  # strict: raises naming the keys

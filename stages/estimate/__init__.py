@@ -274,7 +274,7 @@ def _detector_targets(det: dict, batch: int, width: int, height: int, device) ->
     import torch
 
     from stages.detector.model import CLASS_NAMES, DOWN_RATIO
-    from stages.detector.targets import centernet_targets, ttfnet_box_targets
+    from stages.detector.targets import centernet_targets, facing_targets, ttfnet_box_targets
 
     rng = np.random.default_rng(0)
     items, n = [], MEAN_OBJECTS
@@ -285,6 +285,8 @@ def _detector_targets(det: dict, batch: int, width: int, height: int, device) ->
                                  width // DOWN_RATIO, height // DOWN_RATIO, n, det["min_overlap"])
         if det.get("regression", "centernet") == "ttfnet":
             item |= ttfnet_box_targets(boxes, width // DOWN_RATIO, height // DOWN_RATIO, DOWN_RATIO)
+        if det.get("facing"):  # every object with a facing: the head's backward pass timed too
+            item |= facing_targets(np.tile([[1.0, 0.0]], (n, 1)), item["mask"])
         items.append(item)
     return {k: torch.from_numpy(np.stack([it[k] for it in items])).to(device) for k in items[0]}
 

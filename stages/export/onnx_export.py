@@ -18,8 +18,9 @@ What is exported:
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
   throughout; ``dynamic``: batch and N dynamic. An ensemble (``relation.ensemble``) is exported as one graph
   that runs every member and averages their outputs (``ShippedEnsemble``).
-- detector: ``DetectorGraph`` = CenterNet + ``ctdet_decode`` (peak extraction and top-K), dynamic batch;
-  outputs the three heads and the (B, K, 6) detections, so a runtime needs no post-processing.
+- detector: ``DetectorGraph`` = CenterNet + its decoding (peak extraction and top-K), dynamic batch;
+  outputs the heads' maps and the (B, K, 6) detections ((B, K, 8) with the facing head: its vector at each peak),
+  so a runtime needs no post-processing.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from deepword.inference.runtime import DETECTOR_INPUT, DETECTOR_OUTPUTS, RELATION_INPUTS, RELATION_OUTPUTS
+from deepword.inference.runtime import DETECTOR_INPUT, RELATION_INPUTS, RELATION_OUTPUTS, detector_outputs
 from deepword.relation_graph import node_tensor
 from stages.export.channels_first import ChannelsFirstGraph
 from stages.relation.backbones import IN_CHANNELS, FirstConv
@@ -220,12 +221,8 @@ class DetectorGraph(nn.Module):
         self.net, self.k = net, k
 
     def forward(self, images):
-        # imported here: it loads torch, which importing this module must not
-        from stages.detector.decode import decode_outputs
-        from stages.detector.model import DOWN_RATIO
-
         heads = self.net(images)
-        return *heads, decode_outputs(heads, k=self.k, down_ratio=DOWN_RATIO)
+        return *heads, self.net.decode(heads, self.k)
 
 
 def name_object_dims(model):
@@ -306,7 +303,7 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
 
 def export_detector(net: nn.Module, path: Path, input_width: int, input_height: int, k: int) -> Path:
     example = (torch.zeros((2, 3, input_height, input_width)),)
-    outputs = DETECTOR_OUTPUTS[net.heads.regression]
+    outputs = detector_outputs(net.heads.regression, net.heads.has_facing)
     axes = {DETECTOR_INPUT: {0: "batch"}, **{name: {0: "batch"} for name in outputs}}
     return _export(DetectorGraph(net, k), example, path, (DETECTOR_INPUT,), outputs, axes)
 

@@ -41,8 +41,8 @@ def test_random_crops_keep_image_and_boxes_consistent(tmp_path, flip):
     torch.manual_seed(0)
     seen = set()
     for _ in range(20):
-        image, xyxy, classes = dataset.augmented(*dataset.letterboxed(0))
-        assert image.shape == (32, 64, 3) and len(xyxy) == len(classes)
+        image, xyxy, classes, facings = dataset.augmented(*dataset.letterboxed(0))
+        assert image.shape == (32, 64, 3) and len(xyxy) == len(classes) == len(facings)
         for x1, y1, x2, y2 in np.round(xyxy).astype(int):
             assert image[y1:y2, x1:x2].min() == 255              # every kept box lies on its white square
         seen.add(len(xyxy))
@@ -61,7 +61,7 @@ def test_multi_scale_keeps_image_and_boxes_consistent(tmp_path, crop):
     torch.manual_seed(1)
     sizes = set()
     for _ in range(20):
-        image, xyxy, _ = dataset.augmented(*dataset.letterboxed(0))
+        image, xyxy, _, _ = dataset.augmented(*dataset.letterboxed(0))
         assert image.shape == ((32, 64, 3) if crop else (64, 96, 3))  # cropped or padded to the training size
         for x1, y1, x2, y2 in xyxy:
             # the inner part of every box lies on its white square (edges blur when resized)
@@ -83,8 +83,9 @@ def test_mosaic_boxes_lie_on_their_objects_from_four_images(tmp_path):
     torch.manual_seed(2)
     counts = []
     for _ in range(30):
-        image, xyxy, classes = dataset.mosaic(*dataset.letterboxed(0), np.random.default_rng(len(counts)))
+        image, xyxy, labels = dataset.mosaic(*dataset.letterboxed(0), np.random.default_rng(len(counts)))
         assert image.shape == (32, 64, 3)  # the training window, cut from the mosaic
+        classes = labels[:, 0]
         assert len(xyxy) == len(classes) and set(classes.tolist()) <= {0, 1}
         for x1, y1, x2, y2 in xyxy:
             inner = image[int(np.ceil(y1)) + 1:int(y2) - 1, int(np.ceil(x1)) + 1:int(x2) - 1]
@@ -116,7 +117,7 @@ def test_close_mosaic_trains_the_last_epochs_on_single_images(tmp_path, monkeypa
     monkeypatch.setattr(dataset, "mosaic", lambda *a: pytest.fail("a mosaic was drawn after closing"))
     torch.manual_seed(3)
     for _ in range(5):
-        image, _, _ = dataset.augmented(*dataset.letterboxed(0))
+        image, _, _, _ = dataset.augmented(*dataset.letterboxed(0))
         assert image.shape == (32, 64, 3)
 
 
@@ -156,7 +157,7 @@ def test_preloaded_images_are_the_lazily_loaded_ones_and_loader_processes_share_
     data.setup("fit")
     assert len(data.train_set._cache) == 6 and len(data.val_set._cache) == 2
     for i in range(6):
-        image, inside = data.train_set._cache[i]
+        image, inside, _ = data.train_set._cache[i]
         assert np.array_equal(image, lazy.letterboxed(i)[0]) and np.array_equal(inside.boxes, lazy.letterboxed(i)[1].boxes)
 
     def no_decoding(*args):
