@@ -245,3 +245,29 @@ def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_
             out["estimates"] = float(len(ranked))
     out["ap"] = float(np.mean(aps))
     return out
+
+
+def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | None:
+    """How often the detector's facing head points the right way: over the test split's vehicles with 3D truth that
+    a detected vehicle box matches (IoU >= ``match_iou``, greedily by score: ``deepword.metrics.match_boxes``), the
+    share (%) whose facing vector lies within 90 deg of the true one (``deepword.facing``: image directions from rear
+    to front), and how many there are. None when the predictions carry no facing (ground-truth boxes, a detector
+    without the head)."""
+    from deepword.facing import record_facing, true_facings
+    from deepword.metrics import match_boxes
+
+    right = total = 0
+    for rec in test:
+        pred = preds.get(rec.image)
+        said = record_facing(pred) if pred is not None else {}
+        if not said:
+            continue
+        truth = true_facings(rec)
+        row = {int(b): i for i, b in enumerate(rec.box_ids)}
+        for pred_id, true_id in match_boxes(rec, pred, match_iou).items():
+            f, t = said.get(pred_id), truth[row[true_id]]
+            if f is None or not np.isfinite(t).all():
+                continue
+            total += 1
+            right += float(np.dot(f, t)) > 0
+    return None if total == 0 else {"acc": 100.0 * right / total, "vehicles": float(total)}

@@ -11,7 +11,9 @@ train), ``footprints/<boxes>_<method>.jsonl`` (fused footprints per frame) and `
 MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.detection_scores``: nuScenes AP at
 0.5/1/2/4 m, ATE, ASE, AOE, IoU, recall, precision) as ``bev.<boxes>.<method>.<subset>.<metric>`` for the subsets
 ``all``, ``two_wheels``, ``one_wheel``, ``no_wheel`` (within ``bev.max_range_m``) and the ``<lo>-<hi>m`` distance
-bins; and the paired medians as ``bev.<boxes>.<method>.<metric>`` (matched vehicles within ``bev.max_range_m``),
+bins; with the detector's facing head ``bev.<boxes>.facing.{acc,vehicles}`` (``metrics.facing_agreement``: how often
+it points the right way on the matched test vehicles); and the paired medians as ``bev.<boxes>.<method>.<metric>``
+(matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
 visible) and ``hard`` (in a hard test image) within the range, and ``<lo>_<hi>m`` distance bins.
 
@@ -55,6 +57,7 @@ from stages.bev.metrics import (
     Scored,
     TrueVehicle,
     detection_scores,
+    facing_agreement,
     match_frame,
     summarise,
 )
@@ -180,14 +183,14 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     domain = score_domain(ds, "", inputs, prior, bcfg, out_dir)
     report = {**domain.report, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
               "match_m": float(bcfg.match_m), "fuse_radius_m": float(bcfg.fuse_radius_m)}
-    metrics = flatten(domain.results, domain.detection)
+    metrics = domain.metrics("bev")
     figures = write_figures(artifacts, domain.test, domain.truth, domain.cameras, domain.fused_by, prior, bcfg, e2e)
     if "shift_data" in inputs:   # the held-out domain: evaluate's predictions there, the same prior (fitted in domain)
         heldout = open_dataset(inputs["shift_data"])
         if check_3d(heldout.records):
             shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir)
             report["shift"] = shift.report
-            metrics |= flatten(shift.results, shift.detection, "bev.shift")
+            metrics |= shift.metrics("bev.shift")
             figures += write_figures(artifacts, shift.test, shift.truth, shift.cameras, shift.fused_by, prior, bcfg,
                                      e2e, prefix="shift_")
         else:
@@ -215,10 +218,19 @@ class Domain:
     detection: dict
     fused_by: dict
     notes: list
+    facing: dict      # {boxes: facing_agreement} for the box sources whose detections carry the facing head's vectors
 
     @property
     def report(self) -> dict:
-        return {"results": self.results, "detection": self.detection, "notes": self.notes, "frames": len(self.truth)}
+        return {"results": self.results, "detection": self.detection, "notes": self.notes, "frames": len(self.truth),
+                "facing": self.facing}
+
+    def metrics(self, root: str) -> dict[str, float]:
+        """``flatten``'s keys and ``<root>.<boxes>.facing.{acc,vehicles}``."""
+        out = flatten(self.results, self.detection, root)
+        for boxes, score in self.facing.items():
+            out |= {f"{root}.{boxes}.facing.{k}": float(v) for k, v in score.items()}
+        return out
 
 
 def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: FootprintPrior, bcfg, out_dir: Path) -> Domain:
@@ -228,7 +240,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
-    results, detection, notes, fused_by = {}, {}, [], {}
+    results, detection, notes, fused_by, facing = {}, {}, [], {}, {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
     with shared_fits():   # the methods share their boxes: a vehicle fitted alike by two methods is fitted once
         for boxes in bcfg.box_sources:
@@ -241,6 +253,10 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             if not methods:
                 continue
             results[boxes] = {}
+            agreement = facing_agreement(test, {r.image: r for r in read_records(predictions[methods[0]], root=ds.root,
+                                                                                 allow_empty=True)})
+            if agreement is not None:
+                facing[boxes] = agreement
             for method in [BASELINE, *methods]:
                 source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
                 preds = {r.image: r for r in read_records(predictions[source], root=ds.root,
@@ -254,7 +270,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                 detection.setdefault(boxes, {})[method] = {
                     name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
                 write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
-    return Domain(test, truth, cameras, results, detection, fused_by, notes)
+    return Domain(test, truth, cameras, results, detection, fused_by, notes, facing)
 
 
 def flatten(results: dict, detection: dict | None = None, root: str = "bev") -> dict[str, float]:
@@ -320,8 +336,16 @@ def render_medians(report: dict, part: dict, domain: str = "") -> list[str]:
     return lines
 
 
+def render_facing(facing: dict, domain: str = "") -> list[str]:
+    return [f"- {domain}{boxes} boxes: the detector's facing head points within 90 deg of the true facing for "
+            f"{v['acc']:.1f} % of the {int(v['vehicles'])} matched vehicles with 3D truth" for boxes, v in facing.items()]
+
+
 def render_report(report: dict, bcfg) -> str:
     lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", ""]
+    facing = render_facing(report.get("facing", {})) + render_facing((report.get("shift") or {}).get("facing", {}),
+                                                                      "held-out ")
+    lines += facing + ([""] if facing else [])
     lines += render_detection(report.get("detection", {}))
     lines += render_medians(report, report)
     shift = report.get("shift")
