@@ -40,28 +40,6 @@ def image_facing(cam, x: float, y: float, yaw: float, length: float, height: flo
     return d / span
 
 
-def true_facings(record) -> np.ndarray:
-    """(N, 2) per box of ``record``: the unit image vector from its vehicle's rear to its front (``image_facing``,
-    from the record's ``calibration`` and ``objects_3d``), NaN for wheels, for vehicles without 3D truth or too far to
-    tell, and for every box of a record without either key (a team's images labelled in 2D). What the detector's
-    facing head learns (stages/detector/targets.py) and what the bev stage scores it against."""
-    from deepword.format_3d import record_camera, record_objects_3d
-    from deepword.word_format import VEHICLE
-
-    out = np.full((len(record.boxes), 2), np.nan, dtype=np.float32)
-    if "calibration" not in record.extra or "objects_3d" not in record.extra:
-        return out
-    cam = record_camera(record, "the facing of its vehicles")
-    vehicles, _ = record_objects_3d(record, "the facing of its vehicles")
-    for i, (box_id, cls) in enumerate(zip(record.box_ids, record.class_ids, strict=True)):
-        v = vehicles.get(int(box_id))
-        if v is not None and int(cls) == VEHICLE:
-            d = image_facing(cam, v.x, v.y, v.yaw, v.length, v.height)
-            if d is not None:
-                out[i] = d
-    return out
-
-
 def record_facing(record) -> dict[int, list[float]]:
     """A detection record's facing vectors ({vehicle box_id: [dx, dy]}); empty for a detector without a facing head."""
     return {int(k): v for k, v in (record.extra.get(FACING_KEY) or {}).items()}

@@ -253,8 +253,9 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
     share (%) whose facing vector lies within 90 deg of the true one (``deepword.facing``: image directions from rear
     to front), and how many there are. None when the predictions carry no facing (ground-truth boxes, a detector
     without the head)."""
-    from deepword.facing import record_facing, true_facings
+    from deepword.facing import record_facing
     from deepword.metrics import match_boxes
+    from stages.detector.targets import box_facings   # what the head learnt from: one definition
 
     right = total = 0
     for rec in test:
@@ -262,7 +263,7 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
         said = record_facing(pred) if pred is not None else {}
         if not said:
             continue
-        truth = true_facings(rec)
+        truth = box_facings(rec)
         row = {int(b): i for i, b in enumerate(rec.box_ids)}
         for pred_id, true_id in match_boxes(rec, pred, match_iou).items():
             f, t = said.get(pred_id), truth[row[true_id]]

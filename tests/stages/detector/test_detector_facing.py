@@ -12,7 +12,7 @@ import torch
 
 from deepword.detection.letterbox import letterbox_for
 from deepword.detection.records import detections_to_record, renumbered
-from deepword.facing import FACING_KEY, image_facing, record_facing, true_facings
+from deepword.facing import FACING_KEY, image_facing, record_facing
 from deepword.footprint import FACING_LOGIT, Estimate, facing_vote, fuse_frame
 from deepword.format_3d import Box3D
 from deepword.word_format import Record
@@ -20,7 +20,7 @@ from stages.detector.dataset import box_labels
 from stages.detector.decode import decode_outputs
 from stages.detector.losses import detector_loss, facing_agreement
 from stages.detector.model import build_centernet
-from stages.detector.targets import centernet_targets, facing_targets
+from stages.detector.targets import box_facings, centernet_targets, facing_targets
 from tests.stages.bev.test_bev import _camera
 
 
@@ -50,11 +50,11 @@ def test_targets_come_from_the_3d_truth_and_a_flip_mirrors_them():
     cam = _camera()
     v = Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5)
     rec = _calibrated_record(cam, v)
-    facings = true_facings(rec)
+    facings = box_facings(rec)
     assert facings[0] == pytest.approx(image_facing(cam, v.x, v.y, v.yaw, v.length, v.height))
     assert np.isnan(facings[1]).all()                                   # a wheel has none
     plain = replace(rec, extra={})
-    assert np.isnan(true_facings(plain)).all()                           # 2D labels: none, and no error
+    assert np.isnan(box_facings(plain)).all()                           # 2D labels: none, and no error
     labels = box_labels(rec, facings, flipped=True)
     assert labels[0, 1] == pytest.approx(-facings[0, 0]) and labels[0, 2] == pytest.approx(facings[0, 1])
     assert labels[:, 0].tolist() == [0, 1]
@@ -138,7 +138,7 @@ def test_the_bev_stage_scores_how_often_the_facing_points_the_right_way():
 
     cam = _camera()
     rec = _calibrated_record(cam, Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5))
-    seen = true_facings(rec)[0]
+    seen = box_facings(rec)[0]
     pred = replace(rec, boxes=rec.boxes.copy(), relations=[], extra={FACING_KEY: {"0": list(seen * 0.7)}})
     assert facing_agreement([rec], {rec.image: pred}) == {"acc": 100.0, "vehicles": 1.0}
     wrong = replace(pred, extra={FACING_KEY: {"0": list(-seen)}})
