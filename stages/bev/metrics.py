@@ -255,7 +255,7 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
     without the head)."""
     from deepword.facing import record_facing
     from deepword.metrics import match_boxes
-    from stages.detector.targets import box_facings   # what the head learnt from: one definition
+    from stages.detector.targets import box_facings  # what the head learnt from: one definition
 
     right = total = 0
     for rec in test:
