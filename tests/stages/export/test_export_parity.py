@@ -221,3 +221,18 @@ def test_an_ensemble_exports_as_one_graph_averaging_its_members(tmp_path, static
     with pytest.raises(ParityError):
         relation_parity(members[0], ort_session(path, 1), graphs, size, 0.5, n=12 if static else None).check(
             "member 0", 1e-4, 99.9)
+
+
+def test_a_detector_with_the_facing_head_exports_its_map_and_eight_column_detections(tmp_path):
+    from deepword.inference.runtime import detector_outputs
+    from stages.detector.model import build_centernet, model_config
+
+    torch.manual_seed(0)
+    net = build_centernet(model_config({**DETECTOR, "facing": True})).eval()
+    path = export_detector(net, tmp_path / "det.onnx", 64, 64, 10)
+    session = ort_session(path, 1)
+    assert [o.name for o in session.get_outputs()] == list(detector_outputs(net.heads.regression, True))
+    images = np.random.default_rng(0).normal(size=(2, 3, 64, 64)).astype(np.float32)
+    (detections,) = session.run(["detections"], {"images": images})
+    assert detections.shape == (2, 10, 8)
+    detector_parity(net, session, images, 10, 0.1).check("detector", 1e-4, 99.9)   # the facing map compared too
