@@ -1,5 +1,5 @@
-"""The bird's-eye-view tables of ``make compare`` (docs/bev.md, "Scoring"), from the newest run with footprint
-metrics: the nuScenes-style detection scores of every vehicle within range per box source and method, in domain and
+"""The bird's-eye-view tables of ``make compare`` (docs/bev.md, "Scoring"), from the newest default run with footprint
+metrics (the newest run with them where no default run has them): the nuScenes-style detection scores of every vehicle within range per box source and method, in domain and
 on the held-out domain, with the paired median of the vehicles that show two same-side wheels beside them (the
 figure earlier runs reported, so that the history reads on); then the end-to-end method's scores per wheel
 population and distance bin."""
@@ -9,6 +9,7 @@ from __future__ import annotations
 from pipeline.runs import RunRecord
 from pipeline.tables import Table
 from stages.tables.adapt import end_to_end_method
+from stages.tables.adapt_base import is_default_run
 
 METHODS = {"box_bottom": "box bottom (no relation)", "logic": "`logic` (the paper's IoU rule)",
            "logic_plus": "`logic_plus`", "deepword": "DeepWORD", "deepword_then_logic": "`deepword_then_logic`"}
@@ -31,8 +32,10 @@ def score(metrics: dict[str, float], domain: str, boxes: str, method: str, subse
 
 
 def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
-    """The two tables of the newest run (``runs``: newest first) with footprint detection scores."""
-    run = next((r for r in runs if NEEDED in r.metrics), None)
+    """The two tables of the newest default run (``runs``: newest first) with footprint detection scores, else of the
+    newest run with them: a variant run after the default one (``detector.facing=true``) does not take its place."""
+    scored = [r for r in runs if NEEDED in r.metrics]
+    run = next((r for r in scored if is_default_run(r, r.tags.get("profile", "quick"))), scored[0] if scored else None)
     m = run.metrics if run else {}
     header = ["Domain", "Boxes", "Method", *(label for _, label in SCORES), PAIRED[2]]
     rows = []

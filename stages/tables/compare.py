@@ -30,6 +30,7 @@ from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
 from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
+from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import bev_tables
 from stages.tables.headline import headline_table, write_headline
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
@@ -51,8 +52,10 @@ PARAMS_METRIC = "relation.params"
 def pick(runs: list[RunRecord], row: Row, needed: str, matcher: RowMatcher,
          experiment: str | None = None) -> RunRecord | None:
     """The newest run of ``row``'s configuration that has the metric ``needed``; with ``experiment``, a run
-    of that sweep first (its rows share one training budget), else any run of the row."""
+    of that sweep first (its rows share one training budget), else any run of the row, a default run
+    (``adapt_base.is_default_run``) before a variant of it that the row's keys do not tell apart."""
     found = [run for run in runs if needed in run.metrics and matcher.matches(row, run)]  # newest first
+    found.sort(key=lambda run: not is_default_run(run, run.tags.get("profile", "quick")))  # stable: newest first
     own = [run for run in found if run.param("experiment_name") == experiment]
     return (own or found or [None])[0]
 

@@ -211,6 +211,23 @@ def test_bev_tables_take_the_newest_run_with_footprint_scores():
     assert none == {"bev": None} and len(empty) == 1 and not empty[0].rows
 
 
+def test_bev_tables_prefer_the_default_run_to_a_newer_variant():
+    from pipeline.runs import RunRecord
+    from pipeline.tracker import flatten_params
+    from stages.tables.bev import bev_tables
+    from tests.experiments.pipeline_runs import compose_config
+
+    default = flatten_params(compose_config(["profile=smoke"]))
+    needed = {"detector.shift.ap50.vehicle": 50.0, "eval.shift.gt.deepword.mixed.pair_f1": 60.0}
+
+    def run(run_id, params, ap):
+        return RunRecord(run_id, run_id, 0, params, needed | {"bev.gt.deepword.all.ap": ap}, {"profile": "smoke"})
+
+    runs = [run("variant", default | {"detector.facing": "True"}, 90.0), run("default", default, 80.0)]
+    assert bev_tables(runs)[1] == {"bev": "default"}
+    assert bev_tables(runs[:1])[1] == {"bev": "variant"}     # no default run scored: the newest that is
+
+
 def _logged_before_target(params: dict[str, str]) -> dict[str, str]:
     """A run's params as the engine logged them before relation/backbone named its class: ``relation.backbone.name``
     and every backbone's common fields (input_size, expansion, base_width: the quick profile's 16 on every one)."""
