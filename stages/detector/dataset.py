@@ -66,7 +66,8 @@ def crop_boxes(xyxy: np.ndarray, x0: int, y0: int, width: int, height: int,
 class CenterNetDataset(Dataset):
     """Items: ``image`` (H, W, 3) uint8 RGB (``lightning.batch_to_input`` makes the network input), targets
     ``hm wh reg ind mask`` (see ``centernet_targets``), with ``regression="ttfnet"`` also ``box box_weight``
-    (``ttfnet_box_targets``), and ``index`` of the record. ``augment`` (flip probability, jitter strengths,
+    (``ttfnet_box_targets``), ``facing facing_mask`` (``facing_targets``: read only by a detector with the facing
+    head), and ``index`` of the record. ``augment`` (flip probability, jitter strengths,
     optional ``crop`` [w, h] and ``crop_min_visible``) or None for evaluation (the whole letterboxed image)."""
 
     def __init__(self, root: str | Path, records: list[Record], input_width: int, input_height: int,
