@@ -26,7 +26,7 @@ ground truth do, the baselines do not). Where the wheels an estimate rests on ca
 vehicle's front and the estimate is ``directed``; otherwise (``box``: the cabin's fit picks the sign, a guess;
 wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. A detector with the
 facing head says for each vehicle box which way its front lies in the image (deepword/facing.py); each estimate's
-``facing_vote`` weighs how well its heading, projected through its camera, agrees (``facing_vote``), and the fusion
+``facing_vote`` weighs how well its heading, projected through its camera, agrees with it, and the fusion
 sums those votes with the roles' (``heading_vote``).
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
