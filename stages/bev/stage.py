@@ -253,14 +253,13 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             if not methods:
                 continue
             results[boxes] = {}
-            agreement = facing_agreement(test, {r.image: r for r in read_records(predictions[methods[0]], root=ds.root,
-                                                                                 allow_empty=True)})
+            read = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
+                    for m in methods}
+            agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
             if agreement is not None:
                 facing[boxes] = agreement
             for method in [BASELINE, *methods]:
-                source = methods[0] if method == BASELINE else method  # box_bottom reads the same boxes
-                preds = {r.image: r for r in read_records(predictions[source], root=ds.root,
-                                                          allow_empty=True)}
+                preds = read[methods[0] if method == BASELINE else method]  # box_bottom reads the same boxes
                 fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
                 fused_by[(boxes, method)] = fused
                 matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
