@@ -1,15 +1,18 @@
 """Which way a vehicle faces, as an image shows it: the direction (a unit vector in image pixels) from where its rear
-face's centre projects to where its front face's centre does. The detector learns it from the pixels (its facing head:
-headlights against tail lights, the longer overhang; docs/detector.md, "Facing"), the footprints read it to tell a
-vehicle's front from its back (deepword/footprint.py: ``facing_vote``), where the wheels' roles are near chance.
+face's centre projects to where its front face's centre does. The relation network learns it from each vehicle's crop
+(its facing head: headlights against tail lights, where the cabin sits; docs/bev.md, "Front and back"), the detector
+optionally from its feature map (docs/detector.md, "Facing"); the footprints read it to tell a vehicle's front from its
+back (deepword/footprint.py: ``facing_vote``), where the wheels' roles are near chance.
 
 Defined in the image, not as an angle in the ground plane, so that it needs no calibration at inference and follows
 the image through augmentation: a horizontal flip negates its x, a rescale or crop leaves it; the footprints compare
 it with the same projection of an estimate's heading through the camera that saw it. A vehicle seen end-on still has
 one: its near face projects lower in the picture than its far face.
 
-A detection record carries the detector's vectors under ``extra["facing"]``: {vehicle box_id (str): [dx, dy]},
-unnormalised (their length is the detector's certainty: an L1 fit to unit vectors shrinks where it cannot tell).
+A record carries the vectors under ``extra["facing"]``: {vehicle box_id (str): [dx, dy]}, unnormalised (their length
+is the network's certainty), the detector's in a detection record, the relation network's (which replace them) in its
+predictions, with ``extra["facing_acc"]``: the share of val vehicles its vectors point the right way for, which is how
+far the footprints trust them.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ import math
 
 import numpy as np
 
-FACING_KEY = "facing"     # a detection record's extra key: {box_id: [dx, dy]}
+FACING_KEY = "facing"     # a record's extra key: {box_id: [dx, dy]}
+FACING_ACC_KEY = "facing_acc"  # a record's extra key: the measured share (0-1) of the vectors that point the right way
 MIN_SPAN_PX = 1.0         # faces projecting closer than this (far away, tiny) give no direction
 
 
@@ -41,5 +45,49 @@ def image_facing(cam, x: float, y: float, yaw: float, length: float, height: flo
 
 
 def record_facing(record) -> dict[int, list[float]]:
-    """A detection record's facing vectors ({vehicle box_id: [dx, dy]}); empty for a detector without a facing head."""
+    """A record's facing vectors ({vehicle box_id: [dx, dy]}); empty where no network wrote any."""
     return {int(k): v for k, v in (record.extra.get(FACING_KEY) or {}).items()}
+
+
+def record_facing_accuracy(record, default: float) -> float:
+    """How often a record's facing vectors point the right way, as measured on val by whoever wrote them
+    (``FACING_ACC_KEY``), else ``default``."""
+    acc = record.extra.get(FACING_ACC_KEY)
+    return float(acc) if acc is not None else float(default)
+
+
+def with_facing(extra: dict, facing: dict[int, np.ndarray], accuracy: float) -> dict:
+    """``extra`` with the vectors ``facing`` ({box_id: (2,)}) and their measured accuracy (0-1) in place of any earlier
+    ones (a detection record's)."""
+    vectors = {str(int(k)): [round(float(v[0]), 4), round(float(v[1]), 4)] for k, v in facing.items()}
+    return {**extra, FACING_KEY: vectors, FACING_ACC_KEY: round(float(accuracy), 4)}
+
+
+def mirrored_facing(facing):
+    """Facing vectors (..., 2) of the mirrored image (x negated), numpy or torch: what a network's output on a mirrored
+    image is turned back with before it is averaged with the output on the image itself."""
+    if isinstance(facing, np.ndarray):
+        return facing * np.array([-1.0, 1.0], dtype=facing.dtype)
+    return facing * facing.new_tensor([-1.0, 1.0])   # a torch tensor
+
+
+def box_facings(record) -> np.ndarray:
+    """(N, 2) per box of ``record``: the unit image vector from its vehicle's rear to its front (``image_facing``,
+    from the record's ``calibration`` and ``objects_3d``), NaN for wheels, for vehicles without 3D truth or too far
+    to tell, and for every box of a record without either key (a team's images labelled in 2D): what the detector's
+    and the relation network's facing heads learn from (the boxes that have one) and what the bev stage scores
+    their vectors against."""
+    from deepword.format_3d import record_camera, record_objects_3d
+
+    out = np.full((len(record.boxes), 2), np.nan, dtype=np.float32)
+    if "calibration" not in record.extra or "objects_3d" not in record.extra:
+        return out
+    cam = record_camera(record, "facing targets")
+    vehicles, _ = record_objects_3d(record, "facing targets")
+    for i, box_id in enumerate(record.box_ids):
+        v = vehicles.get(int(box_id))
+        if v is not None and int(record.class_ids[i]) == 0:
+            d = image_facing(cam, v.x, v.y, v.yaw, v.length, v.height)
+            if d is not None:
+                out[i] = d
+    return out

@@ -24,10 +24,11 @@ driving in a lane are parallel.
 ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
 (a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
 vehicle's front and the estimate is ``directed``; otherwise (``box``: the cabin's fit picks the sign, a guess;
-wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. A detector with the
-facing head says for each vehicle box which way its front lies in the image (deepword/facing.py); each estimate's
-``facing_vote`` weighs how well its heading, projected through its camera, agrees with it, and the fusion
-sums those votes with the roles' (``heading_vote``).
+wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. The relation
+network's facing head (and optionally the detector's) says for each vehicle box which way its front lies in the
+image (deepword/facing.py); each estimate's ``facing_vote`` weighs how well its heading, projected through its
+camera, agrees with it, by the head's measured accuracy, and the fusion sums those votes with the roles' and the
+heading prior's (``heading_vote``).
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
 scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
@@ -49,7 +50,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from deepword.cameras import BOX_TO_IMAGE, Camera
-from deepword.facing import image_facing, record_facing
+from deepword.facing import image_facing, record_facing, record_facing_accuracy
 from deepword.format_3d import Box3D
 from deepword.word_format import VEHICLE, WHEEL, Record
 
@@ -111,7 +112,7 @@ class Estimate:
     image: str
     confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
     role_vote: float = 0.0   # log-odds, from the wheels' roles, that ``box.yaw`` points to the front (0: no roles)
-    facing_vote: float = 0.0  # log-odds, from the detector's facing vector, that ``box.yaw`` points to the front
+    facing_vote: float = 0.0  # log-odds, from a network's facing vector, that ``box.yaw`` points to the front
 
     @property
     def rank(self) -> int:
@@ -504,6 +505,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     the vehicles resting on two or more wheels."""
     by_id = {int(b[6]): b for b in rec.boxes}
     facings = record_facing(rec) if use_relations else {}
+    facing_acc = record_facing_accuracy(rec, FACING_VAL_ACC)
     owner = rec.owner_of() if use_relations else {}
     roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
     # a role head lists couples rear first: their order is a (weak) vote when the relations carry roles
@@ -566,7 +568,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             if used:
                 conf *= float(np.mean([by_id[w][4] for w in used]))
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
-                                confidence=conf, role_vote=vote, facing_vote=facing_vote(cam, box, facings.get(vid))))
+                                confidence=conf, role_vote=vote,
+                                facing_vote=facing_vote(cam, box, facings.get(vid), facing_acc)))
     return out
 
 
@@ -620,19 +623,29 @@ def heading_prior_logit(prior: FootprintPrior | None, box: Box3D) -> float:
     return logit if facing else -logit
 
 
-# How far the detector's facing is trusted: log-odds that a facing vector points the right way. Measured on the quick
-# profile's val split with `detector.facing=true` (docs/detector.md, "Facing"): the head points within 90 deg of the
-# truth for FACING_VAL_ACC of the detected vehicles matched to a true one (387; 65 % at the true centre cells), and
-# its vectors' length hardly tells the right ones from the wrong. To be measured again when the head changes.
+# How far the detector's facing is trusted where its records say nothing of it (``deepword.facing.FACING_ACC_KEY``; the
+# relation network's predictions carry their own measured accuracy): measured on the quick profile's val split with
+# `detector.facing=true` (docs/detector.md, "Facing"): the head points within 90 deg of the truth for FACING_VAL_ACC of
+# the detected vehicles matched to a true one (387; 65 % at the true centre cells), and its vectors' length hardly
+# tells the right ones from the wrong. To be measured again when the head changes.
 FACING_VAL_ACC = 0.57
-FACING_LOGIT = math.log(FACING_VAL_ACC / (1 - FACING_VAL_ACC))
+MAX_FACING_ACC = 0.99  # no facing vote counts for more than this: a measured 100 % on val is still a sample
 
 
-def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None) -> float:
-    """Log-odds, from the detector's facing vector of the vehicle box (``deepword.facing``: image pixels, its length
-    the head's certainty), that ``box.yaw`` points to the front: ``FACING_LOGIT`` x the cosine between it and the
-    image direction of ``box``'s own heading through ``cam``, x its length (at most 1). 0 without a vector or where
-    the heading's image direction is not defined."""
+def facing_logit(accuracy: float) -> float:
+    """The log-odds a facing vector of measured ``accuracy`` (0-1) votes with: 0 at chance or below."""
+    p = min(max(float(accuracy), 0.5), MAX_FACING_ACC)
+    return math.log(p / (1 - p))
+
+
+FACING_LOGIT = facing_logit(FACING_VAL_ACC)
+
+
+def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None, accuracy: float = FACING_VAL_ACC) -> float:
+    """Log-odds, from a network's facing vector of the vehicle box (``deepword.facing``: image pixels, its length the
+    network's certainty), that ``box.yaw`` points to the front: ``facing_logit(accuracy)`` (the vectors' measured
+    accuracy) x the cosine between it and the image direction of ``box``'s own heading through ``cam``, x its length
+    (at most 1). 0 without a vector or where the heading's image direction is not defined."""
     if facing is None:
         return 0.0
     f = np.asarray(facing, dtype=np.float64)
@@ -642,7 +655,7 @@ def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None) -> float:
     d = image_facing(cam, box.x, box.y, box.yaw, box.length, box.height)
     if d is None:
         return 0.0
-    return FACING_LOGIT * float(np.dot(d, f)) / strength * min(strength, 1.0)
+    return facing_logit(accuracy) * float(np.dot(d, f)) / strength * min(strength, 1.0)
 
 
 def heading_vote(box: Box3D, group: list[Estimate], prior: FootprintPrior | None) -> float:

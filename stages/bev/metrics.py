@@ -253,9 +253,8 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
     share (%) whose facing vector lies within 90 deg of the true one (``deepword.facing``: image directions from rear
     to front), and how many there are. None when the predictions carry no facing (ground-truth boxes, a detector
     without the head)."""
-    from deepword.facing import record_facing
+    from deepword.facing import box_facings, record_facing  # box_facings: what the heads learnt from
     from deepword.metrics import match_boxes
-    from stages.detector.targets import box_facings  # what the head learnt from: one definition
 
     right = total = 0
     for rec in test:

@@ -255,7 +255,9 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             results[boxes] = {}
             read = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
                     for m in methods}
-            agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
+            # the methods share their boxes; the relation network's vectors (DeepWORD's rows) replace the detector's
+            said = [m for m in methods if m.startswith("deepword")] + methods
+            agreement = next((a for m in said if (a := facing_agreement(test, read[m])) is not None), None)
             if agreement is not None:
                 facing[boxes] = agreement
             for method in [BASELINE, *methods]:

@@ -21,6 +21,7 @@ import torch
 from torch.utils.data import Dataset
 
 from deepword.detection.letterbox import PAD_VALUE, boxes_to_input, letterbox_for, letterbox_image
+from deepword.facing import box_facings
 from deepword.word_format import Record, load_image
 from stages.detector.augment import (
     crop_or_pad,
@@ -33,7 +34,7 @@ from stages.detector.augment import (
     sensor_effects,
 )
 from stages.detector.model import CLASS_NAMES, DOWN_RATIO
-from stages.detector.targets import box_facings, centernet_targets, facing_targets, ttfnet_box_targets
+from stages.detector.targets import centernet_targets, facing_targets, ttfnet_box_targets
 
 
 def box_labels(record: Record, facings: np.ndarray, flipped: bool) -> np.ndarray:
@@ -92,7 +93,7 @@ class CenterNetDataset(Dataset):
 
     def letterboxed(self, index: int) -> tuple[np.ndarray, Record, np.ndarray]:
         """The record's image letterboxed to the input size (uint8, cached), the record of that image (boxes in input
-        pixels, width and height the input size) and its boxes' facing vectors (``targets.box_facings``: (N, 2), NaN
+        pixels, width and height the input size) and its boxes' facing vectors (``deepword.facing.box_facings``: (N, 2), NaN
         where unknown; a letterbox scales both axes alike, so they hold in the input too)."""
         if index not in self._cache:
             self._cache[index] = self._letterbox_uncached(index)

@@ -144,28 +144,6 @@ def ttfnet_box_targets(xyxy: np.ndarray, out_width: int, out_height: int, down_r
     return {"box": box, "box_weight": weight}
 
 
-def box_facings(record) -> np.ndarray:
-    """(N, 2) per box of ``record``: the unit image vector from its vehicle's rear to its front
-    (``deepword.facing.image_facing``, from the record's ``calibration`` and ``objects_3d``), NaN for wheels, for
-    vehicles without 3D truth or too far to tell, and for every box of a record without either key (a team's images
-    labelled in 2D): the facing head learns from the boxes that have one."""
-    from deepword.facing import image_facing
-    from deepword.format_3d import record_camera, record_objects_3d
-
-    out = np.full((len(record.boxes), 2), np.nan, dtype=np.float32)
-    if "calibration" not in record.extra or "objects_3d" not in record.extra:
-        return out
-    cam = record_camera(record, "the detector's facing targets")
-    vehicles, _ = record_objects_3d(record, "the detector's facing targets")
-    for i, box_id in enumerate(record.box_ids):
-        v = vehicles.get(int(box_id))
-        if v is not None and int(record.class_ids[i]) == 0:
-            d = image_facing(cam, v.x, v.y, v.yaw, v.length, v.height)
-            if d is not None:
-                out[i] = d
-    return out
-
-
 def facing_targets(facings: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
     """The facing head's targets aligned with ``centernet_targets``' objects: ``facing`` (K, 2) the unit vectors (0
     where unknown) and ``facing_mask`` (K,) 1 where an object has one (and a centre cell: ``mask``)."""

@@ -13,7 +13,7 @@ What is exported:
   convolution, the coordinate planes' share of it a small convolution on a grid; dynamic variant: the
   backbone runs on real objects only), with its tensors' shapes named (``name_object_dims``).
   Inputs crops (B, N, 3, S, S) uint8, coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs
-  owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
+  owner, couple (B, N, N), front (B, N), facing (B, N, 2). Decisions (0.5 threshold, one owner) stay outside the graph
   (``deepword.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
   throughout; ``dynamic``: batch and N dynamic. An ensemble (``relation.ensemble``) is exported as one graph
@@ -292,7 +292,7 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
     """Export the relation network; ``static``: N = max_objects fixed, else N dynamic (batch always dynamic)."""
     nodes = {} if static else {1: "objects"}
     pairs = {} if static else {1: "objects", 2: "objects"}
-    axes = {name: {0: "batch", **nodes} for name in ("crops", "coords", "front")}
+    axes = {name: {0: "batch", **nodes} for name in ("crops", "coords", "front", "facing")}
     axes.update({name: {0: "batch", **pairs} for name in ("adj", "cand", "owner", "couple")})
     # the dynamic variant is traced with fewer nodes than max_objects, so no size is baked in by accident
     n = max_objects if static else max(2, max_objects // 2 + 1)

@@ -111,7 +111,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
             detector["operating_point_search"] = search
     files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
-                           "model": meta["model"]},
+                           "facing_val_acc": meta.get("facing_val_acc"), "model": meta["model"]},
               "detector": detector, "end_to_end": end_to_end, "files": files, **extra}
     (out_dir / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
 

@@ -12,7 +12,7 @@ import torch
 
 from deepword.detection.letterbox import letterbox_for
 from deepword.detection.records import detections_to_record, renumbered
-from deepword.facing import FACING_KEY, image_facing, record_facing
+from deepword.facing import FACING_KEY, box_facings, image_facing, record_facing
 from deepword.footprint import FACING_LOGIT, Estimate, facing_vote, fuse_frame
 from deepword.format_3d import Box3D
 from deepword.word_format import Record
@@ -20,7 +20,7 @@ from stages.detector.dataset import box_labels
 from stages.detector.decode import decode_outputs
 from stages.detector.losses import detector_loss, facing_agreement
 from stages.detector.model import build_centernet
-from stages.detector.targets import box_facings, centernet_targets, facing_targets
+from stages.detector.targets import centernet_targets, facing_targets
 from tests.stages.bev.test_bev import _camera
 
 
