@@ -67,7 +67,7 @@ class GraphDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         start, stop = int(self.offsets[i]), int(self.offsets[i + 1])
         k = stop - start
-        item = {key: v[i, :k, :k] if v.dim() == 3 and key != "coords" else v[i, :k] for key, v in self.tensors.items()}
+        item = {key: v[i, :k, :k] if key in PAIR_FIELDS else v[i, :k] for key, v in self.tensors.items()}
         item["classes"] = item["classes"].long()
         item["role"] = item["role"].long()
         crops = self.crops[start:stop]
