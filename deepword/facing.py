@@ -1,6 +1,6 @@
 """Which way a vehicle faces, as an image shows it: the direction (a unit vector in image pixels) from where its rear
-face's centre projects to where its front face's centre does. The relation network learns it from each vehicle's crop
-(its facing head: headlights against tail lights, where the cabin sits; docs/bev.md, "Front and back"), the detector
+face's centre projects to where its front face's centre does. The facing network learns it from each vehicle box's
+crop (stages/facing: headlights against tail lights, where the cabin sits; docs/bev.md, "Front and back"), the detector
 optionally from its feature map (docs/detector.md, "Facing"); the footprints read it to tell a vehicle's front from its
 back (deepword/footprint.py: ``facing_vote``), where the wheels' roles are near chance.
 
@@ -10,9 +10,9 @@ it with the same projection of an estimate's heading through the camera that saw
 one: its near face projects lower in the picture than its far face.
 
 A record carries the vectors under ``extra["facing"]``: {vehicle box_id (str): [dx, dy]}, unnormalised (their length
-is the network's certainty), the detector's in a detection record, the relation network's (which replace them) in its
-predictions, with ``extra["facing_acc"]``: the share of val vehicles its vectors point the right way for, which is how
-far the footprints trust them.
+is the network's certainty): the detector's in a detection record, the facing network's (which replace them) where the
+footprints are estimated, with ``extra["facing_acc"]``: the share of val vehicles its vectors point the right way for,
+which is how far the footprints trust them.
 """
 
 from __future__ import annotations
@@ -63,19 +63,11 @@ def with_facing(extra: dict, facing: dict[int, np.ndarray], accuracy: float) -> 
     return {**extra, FACING_KEY: vectors, FACING_ACC_KEY: round(float(accuracy), 4)}
 
 
-def mirrored_facing(facing):
-    """Facing vectors (..., 2) of the mirrored image (x negated), numpy or torch: what a network's output on a mirrored
-    image is turned back with before it is averaged with the output on the image itself."""
-    if isinstance(facing, np.ndarray):
-        return facing * np.array([-1.0, 1.0], dtype=facing.dtype)
-    return facing * facing.new_tensor([-1.0, 1.0])   # a torch tensor
-
-
 def box_facings(record) -> np.ndarray:
     """(N, 2) per box of ``record``: the unit image vector from its vehicle's rear to its front (``image_facing``,
     from the record's ``calibration`` and ``objects_3d``), NaN for wheels, for vehicles without 3D truth or too far
-    to tell, and for every box of a record without either key (a team's images labelled in 2D): what the detector's
-    and the relation network's facing heads learn from (the boxes that have one) and what the bev stage scores
+    to tell, and for every box of a record without either key (a team's images labelled in 2D): what the facing
+    network and the detector's facing head learn from (the boxes that have one) and what the bev stage scores
     their vectors against."""
     from deepword.format_3d import record_camera, record_objects_3d
 

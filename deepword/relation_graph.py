@@ -8,10 +8,8 @@ Edges: the adjacency holds the Gaussian-mixture priors of wheel-vehicle pairs (b
 wheel-wheel pairs, self-loops for valid nodes, zeros for vehicle-vehicle pairs and masked nodes. A
 *candidate* pair is a wheel-vehicle or wheel-wheel pair of two valid nodes whose prior reaches
 ``min_prior``; only candidates are trained on and only candidates can be predicted.
-Targets: 0/1 ownership (wheel-vehicle, symmetric), couples (wheel-wheel, symmetric), each wheel's
-role (1 front, 0 rear, -1 unknown) from the relation's role or the couple order (rear first), and each
-vehicle's facing (``deepword.facing.box_facings``: the unit image vector from its rear to its front, from the
-record's 3D truth; 0 where there is none).
+Targets: 0/1 ownership (wheel-vehicle, symmetric), couples (wheel-wheel, symmetric) and each wheel's
+role (1 front, 0 rear, -1 unknown) from the relation's role or the couple order (rear first).
 """
 
 from __future__ import annotations
@@ -23,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.facing import box_facings
 from deepword.geometry import pairwise_distance_ratio
 from deepword.metrics import evaluated_mask
 from deepword.word_format import VEHICLE, WHEEL, Record
@@ -259,7 +256,6 @@ class SplitInputs:
     owner: np.ndarray       # (I, N, N) uint8
     couple: np.ndarray      # (I, N, N) uint8
     role: np.ndarray        # (I, N) int8
-    facing: np.ndarray      # (I, N, 2) float32: unit vectors of the vehicles with 3D truth, 0 elsewhere
     evaluated: np.ndarray   # (I, N) bool: the wheels validation scores, those evaluation scores (docs/design.md §7)
     images: np.ndarray      # (I,) str
 
@@ -301,7 +297,6 @@ def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarr
     owner = np.zeros((n_img, n, n), dtype=np.uint8)
     couple = np.zeros((n_img, n, n), dtype=np.uint8)
     role = np.full((n_img, n), -1, dtype=np.int8)
-    facing = np.zeros((n_img, n, 2), dtype=np.float32)
     evaluated = np.zeros((n_img, n), dtype=bool)
     crops, offsets = [], [0]
     for i, rec in enumerate(records):
@@ -312,11 +307,10 @@ def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarr
         coords[i, :k], classes[i, :k], valid[i, :k] = g.coords, g.classes, g.valid
         adj[i, :k, :k], cand[i, :k, :k] = g.adj, g.cand
         owner[i, :k, :k], couple[i, :k, :k], role[i, :k] = relation_targets(rec)
-        facing[i, :k] = np.nan_to_num(box_facings(rec), nan=0.0)
         evaluated[i, :k] = evaluated_mask(rec.xyxy, rec.class_ids, min_box_px)
     size = cfg.input_size
     packed = np.concatenate(crops) if crops else np.zeros((0, 3, size, size), dtype=np.uint8)
     return SplitInputs(crops=packed, offsets=np.asarray(offsets, dtype=np.int64), coords=coords,
                        classes=classes, valid=valid, adj=adj, cand=cand, owner=owner, couple=couple, role=role,
-                       facing=facing, evaluated=evaluated,
+                       evaluated=evaluated,
                        images=np.asarray([r.image for r in records], dtype=str))

@@ -12,7 +12,6 @@ import dataclasses
 
 import numpy as np
 
-from deepword.facing import with_facing
 from deepword.geometry import containment
 from deepword.word_format import VEHICLE, WHEEL, Record
 
@@ -58,16 +57,11 @@ def decode_couples(scores: np.ndarray, classes: np.ndarray, cand: np.ndarray, th
 
 
 def prediction_record(rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarray, front: np.ndarray,
-                      has_roles: bool, facing: np.ndarray | None = None, facing_acc: float | None = None) -> Record:
+                      has_roles: bool) -> Record:
     """The record with its boxes unchanged and the decided relations and couples (wheel rows, vehicle
-    columns in ``pred_owner``; symmetric ``pred_couple``; ``front`` probabilities), and, where the network's facing
-    was measured on val (``facing_acc``, 0-1), its vehicles' ``facing`` vectors (N, 2) (``deepword.facing``)."""
+    columns in ``pred_owner``; symmetric ``pred_couple``; ``front`` probabilities)."""
     ids = rec.box_ids
     n = len(ids)
-    extra = rec.extra
-    if facing is not None and facing_acc is not None:
-        vehicles = np.flatnonzero(rec.class_ids == VEHICLE)
-        extra = with_facing(rec.extra, {int(ids[i]): facing[i] for i in vehicles}, facing_acc)
     relations = []
     for w, v in zip(*np.nonzero(pred_owner[:n, :n]), strict=True):
         role = ("front" if front[w] > 0.5 else "rear") if has_roles else None
@@ -77,5 +71,5 @@ def prediction_record(rec: Record, pred_owner: np.ndarray, pred_couple: np.ndarr
     for a, b in zip(*np.nonzero(np.triu(pred_couple[:n, :n], 1)), strict=True):
         rear_first = front[a] <= front[b] if has_roles else centre_x[a] <= centre_x[b]
         pairs.append((int(ids[a]), int(ids[b])) if rear_first else (int(ids[b]), int(ids[a])))
-    return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs), extra=extra)
+    return dataclasses.replace(rec, relations=sorted(relations), wheel_pairs=sorted(pairs))
 

@@ -12,6 +12,8 @@ present at inference time::
     relation_int8.onnx     INT8 (onnxruntime dynamic quantisation of relation_dynamic.onnx)
     detector.onnx          CenterNet + decoding, dynamic batch: images -> (B, K, 6) detections; absent, with
                            export.json "detector": null, when the run left the detector out (pipeline.skip)
+    facing.onnx            the facing network, vehicle crops -> which way each front lies (deepword.inference.
+                           facing_net); absent, with "facing": null, without one (no 3D truth to learn from)
 
 Evaluation and inference run the dynamic-N models, so every image is run at its real object count (the
 static model gives the same scores within the parity tolerance; both are checked against PyTorch).
@@ -29,7 +31,6 @@ import numpy as np
 
 from deepword.detection.letterbox import preprocess
 from deepword.detection.records import detections_to_record, renumbered
-from deepword.facing import mirrored_facing
 from deepword.inference.decode import decode_couples, decode_owners, prediction_record
 from deepword.priors import load_priors
 from deepword.relation_graph import InputConfig, build_graph, mirrored
@@ -42,7 +43,7 @@ PRIORS_FILE = "priors.json"
 RELATION_FILES = {"static": "relation_static.onnx", "dynamic": "relation_dynamic.onnx", "int8": "relation_int8.onnx"}
 DETECTOR_FILE = "detector.onnx"
 RELATION_INPUTS = ("crops", "coords", "adj", "cand")
-RELATION_OUTPUTS = ("owner", "couple", "front", "facing")
+RELATION_OUTPUTS = ("owner", "couple", "front")
 DETECTOR_INPUT = "images"
 # the detector graph's outputs by its box regression (detector.regression); the runtime reads "detections"
 DETECTOR_OUTPUTS = {"centernet": ("heatmap", "wh", "reg", "detections"), "ttfnet": ("heatmap", "ltrb", "detections")}
@@ -103,14 +104,6 @@ def pad_graphs(graphs: Sequence, size: int, n: int | None = None,
     return feed, classes
 
 
-def flip_mean(outputs: Sequence, mirrored_outputs: Sequence) -> list:
-    """The mean of the relation outputs (``RELATION_OUTPUTS`` order) on graphs and on their mirror images, the mirror's
-    facing vectors turned back (x negated) first; numpy or torch."""
-    mine = list(mirrored_outputs)
-    mine[RELATION_OUTPUTS.index("facing")] = mirrored_facing(mine[RELATION_OUTPUTS.index("facing")])
-    return [(a + b) / 2 for a, b in zip(outputs, mine, strict=True)]
-
-
 class OnnxRelation:
     """DeepWORD relations with an exported relation model: graph building as in training
     (``deepword.relation_graph.build_graph``), scores from onnxruntime, decisions as in
@@ -126,9 +119,6 @@ class OnnxRelation:
         self.threshold = float(meta["decode"]["threshold"])
         self.one_owner = bool(meta["decode"]["one_owner"])
         self.has_roles = bool(meta["has_roles"])
-        # the facing head's val accuracy (percent; none for data without 3D truth): how far its vectors are trusted
-        acc = meta.get("facing_val_acc")
-        self.facing_acc = None if acc is None else float(acc) / 100.0
         self.min_containment = float(meta["decode"].get("min_containment", 0.0))
         # score each graph and its mirror image and decide on the mean (relation.decode.flip_average)
         self.flip_average = bool(meta["decode"].get("flip_average", False))
@@ -140,16 +130,16 @@ class OnnxRelation:
         return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
 
     def scores(self, graphs: Sequence) -> tuple[np.ndarray, ...]:
-        """(owner, couple, front, facing, classes, cand, coords) for a batch of graphs; with ``flip_average`` the
+        """(owner, couple, front, classes, cand, coords) for a batch of graphs; with ``flip_average`` the
         scores are the mean of the graphs' and their mirror images' (test-time augmentation by the flip the
-        network trained with: decisions no longer depend on which way the image faces; the mirror's facing turned
-        back first)."""
+        network trained with: decisions no longer depend on which way the image faces)."""
         feed, classes = pad_graphs(graphs, self.inputs.input_size, self.static_n)
-        outputs = self.session.run(list(RELATION_OUTPUTS), feed)
+        owner, couple, front = self.session.run(list(RELATION_OUTPUTS), feed)
         if self.flip_average:
             flipped, _ = pad_graphs([mirrored(g) for g in graphs], self.inputs.input_size, self.static_n)
-            outputs = flip_mean(outputs, self.session.run(list(RELATION_OUTPUTS), flipped))
-        return (*outputs, classes, feed["cand"], feed["coords"])
+            owner_m, couple_m, front_m = self.session.run(list(RELATION_OUTPUTS), flipped)
+            owner, couple, front = (owner + owner_m) / 2, (couple + couple_m) / 2, (front + front_m) / 2
+        return owner, couple, front, classes, feed["cand"], feed["coords"]
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
@@ -165,11 +155,10 @@ class OnnxRelation:
 
     def decide(self, records: Sequence[Record], scores: tuple[np.ndarray, ...]) -> list[Record]:
         """Records with the relations decided from ``scores``: what ``scores`` returns for their graphs."""
-        owner, couple, front, facing, classes, cand, coords = scores
+        owner, couple, front, classes, cand, coords = scores
         pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner, coords, self.min_containment)
         pred_couple = decode_couples(couple, classes, cand, self.threshold)
-        return [prediction_record(rec, pred_owner[i], pred_couple[i], front[i], self.has_roles, facing[i],
-                                  self.facing_acc)
+        return [prediction_record(rec, pred_owner[i], pred_couple[i], front[i], self.has_roles)
                 for i, rec in enumerate(records)]
 
 

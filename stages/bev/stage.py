@@ -30,12 +30,13 @@ import math
 import random
 import shutil
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from deepword.facing import with_facing
 from deepword.footprint import (
     FootprintPrior,
     fit_prior,
@@ -48,8 +49,9 @@ from deepword.footprint import (
     write_footprints,
 )
 from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
+from deepword.inference.facing_net import OnnxFacing
 from deepword.top_view import panel_grid, top_view
-from deepword.word_format import WHEEL, Dataset, Record, open_dataset, read_records
+from deepword.word_format import WHEEL, Dataset, Record, load_image, open_dataset, read_records
 from pipeline.outputs import StageInputs
 from stages.bev.metrics import (
     DETECTION_METRICS,
@@ -180,7 +182,8 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     prior = FootprintPrior.from_json(train_prior(ds, int(bcfg.fit_images), seed).to_json())
     (out_dir / PRIOR_FILE).write_text(json.dumps(prior.to_json(), indent=1))
     e2e = end_to_end_method(inputs.output("evaluate", "report"))
-    domain = score_domain(ds, "", inputs, prior, bcfg, out_dir)
+    facing_net = OnnxFacing.from_bundle(inputs["export"]) if "export" in inputs else None
+    domain = score_domain(ds, "", inputs, prior, bcfg, out_dir, facing_net)
     report = {**domain.report, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
               "match_m": float(bcfg.match_m), "fuse_radius_m": float(bcfg.fuse_radius_m)}
     metrics = domain.metrics("bev")
@@ -188,7 +191,7 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     if "shift_data" in inputs:   # the held-out domain: evaluate's predictions there, the same prior (fitted in domain)
         heldout = open_dataset(inputs["shift_data"])
         if check_3d(heldout.records):
-            shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir)
+            shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir, facing_net)
             report["shift"] = shift.report
             metrics |= shift.metrics("bev.shift")
             figures += write_figures(artifacts, shift.test, shift.truth, shift.cameras, shift.fused_by, prior, bcfg,
@@ -233,9 +236,11 @@ class Domain:
         return out
 
 
-def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: FootprintPrior, bcfg, out_dir: Path) -> Domain:
+def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: FootprintPrior, bcfg, out_dir: Path,
+                 facing_net=None) -> Domain:
     """Footprints of every method evaluate predicted on ``ds``'s test split (``prefix`` "" in domain, ``shift/`` the
-    held-out domain: evaluate's ``<prefix>predictions/`` in, the stage's ``<prefix>footprints/`` out), scored."""
+    held-out domain: evaluate's ``<prefix>predictions/`` in, the stage's ``<prefix>footprints/`` out), scored; with
+    ``facing_net`` (the bundle's ``OnnxFacing``) every vehicle box carries its facing vector."""
     test = ds.subset("test")
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
@@ -255,9 +260,9 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             results[boxes] = {}
             read = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
                     for m in methods}
-            # the methods share their boxes; the relation network's vectors (DeepWORD's rows) replace the detector's
-            said = [m for m in methods if m.startswith("deepword")] + methods
-            agreement = next((a for m in said if (a := facing_agreement(test, read[m])) is not None), None)
+            if facing_net is not None:   # the facing network's vectors replace any a detector wrote
+                read = with_facing_vectors(read, facing_net, ds.root)
+            agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
             if agreement is not None:
                 facing[boxes] = agreement
             for method in [BASELINE, *methods]:
@@ -272,6 +277,21 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                     name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
                 write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
     return Domain(test, truth, cameras, results, detection, fused_by, notes, facing)
+
+
+def with_facing_vectors(read: dict, facing_net, root) -> dict:
+    """Each method's predictions ({method: {image: record}}) with the facing network's vector of every vehicle box
+    and its val accuracy (``deepword.facing.with_facing``), computed once per image and set of boxes."""
+    vectors = {}
+    out = {}
+    for method, records in read.items():
+        out[method] = {}
+        for image, rec in records.items():
+            key = (image, rec.boxes[:, :4].tobytes(), rec.boxes[:, 6].tobytes())
+            if key not in vectors:
+                vectors[key] = facing_net.vectors(rec, load_image(root, rec))
+            out[method][image] = replace(rec, extra=with_facing(rec.extra, vectors[key], facing_net.accuracy))
+    return out
 
 
 def flatten(results: dict, detection: dict | None = None, root: str = "bev") -> dict[str, float]:

@@ -51,7 +51,7 @@ def _conv1x1(x: torch.Tensor, linear: nn.Linear, weight: torch.Tensor | None = N
 class ChannelsFirstGraph(nn.Module):
     """``net.relate(h, adj, cand, coords)`` with the pair tensors (B, C, N, N): h (B, N, hidden) backbone
     features, adj and cand (B, N, N), coords (B, N, 4) normalised boxes (may be None when the network uses
-    no geometry). Returns (owner_scores, couple_scores, front, facing) as ``relate``. Registers no parameters of
+    no geometry). Returns (owner_scores, couple_scores, front) as ``relate``. Registers no parameters of
     its own: ``net`` is a submodule, its weights are reshaped into convolution kernels inside ``forward``."""
 
     def __init__(self, net: RelationNet):

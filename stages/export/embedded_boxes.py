@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from deepword.inference.runtime import flip_mean, pad_graphs
+from deepword.inference.runtime import pad_graphs
 from deepword.relation_graph import ImageGraph, mirror_coords, mirrored, subgraph
 from stages.relation.model import mean_outputs
 
@@ -55,8 +55,8 @@ class EmbeddedBoxes:
         return torch.stack([m.embed(crops, coords) for m in self.members])
 
     def scores(self, images: Sequence[str], rows: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
-        """(owner, couple, front, facing, classes, cand, coords) for the graphs of ``graphs[images[i]]`` restricted to
-        its nodes ``rows[i]`` (a batch, padded to its largest subset by ``deepword.inference.runtime.pad_graphs``)."""
+        """(owner, couple, front, classes, cand, coords) for the graphs of ``graphs[images[i]]`` restricted to its
+        nodes ``rows[i]`` (a batch, padded to its largest subset by ``deepword.inference.runtime.pad_graphs``)."""
 
         feed, classes = pad_graphs([subgraph(self.nodes[image], idx) for image, idx in zip(images, rows, strict=True)],
                                    0, crops=False)
@@ -76,22 +76,21 @@ class EmbeddedBoxes:
                 outputs.append(mean_outputs([m.graph(h[v, j], adj_t, cand_t, view_coords)
                                              for j, m in enumerate(self.members)]))
         if len(outputs) == 2:  # flip averaging: the mean of the two views, as OnnxRelation.scores takes it
-            outputs = [flip_mean(*outputs)]
-        return (*(t.numpy() for t in outputs[0]), classes, cand, coords)
+            outputs = [tuple((a + b) / 2 for a, b in zip(*outputs, strict=True))]
+        owner, couple, front = outputs[0]
+        return owner.numpy(), couple.numpy(), front.numpy(), classes, cand, coords
 
     def max_abs_diff_to(self, scores: Callable[[list[ImageGraph]], tuple[np.ndarray, ...]]) -> float:
         """The largest difference between ``scores`` (the shipped model's, ``OnnxRelation.scores``) and this
-        split's on every whole graph, over the candidate pairs' scores and the front probabilities and facing
-        vectors of real nodes."""
+        split's on every whole graph, over the candidate pairs' scores and the front probabilities of real nodes."""
         worst = 0.0
         images = list(self.graphs)
         for start in range(0, len(images), 16):
             chunk = images[start:start + 16]
             rows = [np.arange(len(self.graphs[image].classes)) for image in chunk]
             mine, theirs = self.scores(chunk, rows), scores([self.graphs[image] for image in chunk])
-            pairs, nodes = mine[5] > 0, mine[4] >= 0
-            for a, b, where in ((mine[0], theirs[0], pairs), (mine[1], theirs[1], pairs), (mine[2], theirs[2], nodes),
-                                (mine[3], theirs[3], nodes)):
+            pairs, nodes = mine[4] > 0, mine[3] >= 0
+            for a, b, where in ((mine[0], theirs[0], pairs), (mine[1], theirs[1], pairs), (mine[2], theirs[2], nodes)):
                 if where.any():
                     worst = max(worst, float(np.abs(a - b)[where].max()))
         return worst

@@ -13,11 +13,12 @@ What is exported:
   convolution, the coordinate planes' share of it a small convolution on a grid; dynamic variant: the
   backbone runs on real objects only), with its tensors' shapes named (``name_object_dims``).
   Inputs crops (B, N, 3, S, S) uint8, coords (B, N, 4), adj (B, N, N), cand (B, N, N) float; outputs
-  owner, couple (B, N, N), front (B, N), facing (B, N, 2). Decisions (0.5 threshold, one owner) stay outside the graph
+  owner, couple (B, N, N), front (B, N). Decisions (0.5 threshold, one owner) stay outside the graph
   (``deepword.inference.decode``): onnxruntime has no boolean EyeLike kernel, and an embedded runtime applies
   its own post-processing anyway. ``static``: N fixed to max_objects (batch dynamic), static shapes
   throughout; ``dynamic``: batch and N dynamic. An ensemble (``relation.ensemble``) is exported as one graph
   that runs every member and averages their outputs (``ShippedEnsemble``).
+- facing: ``stages.facing.model.FacingNet`` as it is: uint8 crops (B, 3, S, S) -> facing (B, 2), batch dynamic.
 - detector: ``DetectorGraph`` = CenterNet + its decoding (peak extraction and top-K), dynamic batch;
   outputs the heads' maps and the (B, K, 6) detections ((B, K, 8) with the facing head: its vector at each peak),
   so a runtime needs no post-processing.
@@ -292,13 +293,23 @@ def export_relation(net: nn.Module, path: Path, input_size: int, max_objects: in
     """Export the relation network; ``static``: N = max_objects fixed, else N dynamic (batch always dynamic)."""
     nodes = {} if static else {1: "objects"}
     pairs = {} if static else {1: "objects", 2: "objects"}
-    axes = {name: {0: "batch", **nodes} for name in ("crops", "coords", "front", "facing")}
+    axes = {name: {0: "batch", **nodes} for name in ("crops", "coords", "front")}
     axes.update({name: {0: "batch", **pairs} for name in ("adj", "cand", "owner", "couple")})
     # the dynamic variant is traced with fewer nodes than max_objects, so no size is baked in by accident
     n = max_objects if static else max(2, max_objects // 2 + 1)
     example = relation_example(n, input_size)
     shipped = shipped_relation(net.eval(), real_only=not static)
     return _export(shipped, example, path, RELATION_INPUTS, RELATION_OUTPUTS, axes, annotate=name_object_dims)
+
+
+def export_facing(net: nn.Module, path: Path, input_size: int) -> Path:
+    """Export the facing network: uint8 crops (batch dynamic) -> facing vectors in crop pixels."""
+    from deepword.inference.facing_net import FACING_INPUT, FACING_OUTPUT
+
+    example = torch.randint(0, 256, (2, 3, input_size, input_size), dtype=torch.uint8,
+                            generator=torch.Generator().manual_seed(0))
+    return _export(net, (example,), path, [FACING_INPUT], [FACING_OUTPUT],
+                   {FACING_INPUT: {0: "vehicles"}, FACING_OUTPUT: {0: "vehicles"}})
 
 
 def export_detector(net: nn.Module, path: Path, input_width: int, input_height: int, k: int) -> Path:

@@ -2,8 +2,8 @@
 
 Two figures per model: the largest absolute difference of any output that matters, and the share (in
 percent) of decisions that agree. For the relation network, "what matters" is the score of every
-candidate pair (valid nodes; padding is multiplied away in both), the front probability and the facing vector
-of every valid node, and a decision is "score > threshold" of a candidate pair. For the detector it is the three
+candidate pair (valid nodes; padding is multiplied away in both) and the front probability of every
+valid wheel, and a decision is "score > threshold" of a candidate pair. For the detector it is the three
 heads (relative beyond magnitude 1: ``head_difference``), and a decision is "heatmap >= score threshold" of a cell and class (the decoding in the graph,
 peak extraction and top-K, is then the same computation on the same heads; comparing its output slot by
 slot would count two near-equal peaks listed in the other order as a disagreement).
@@ -54,7 +54,7 @@ class ParityReport:
 
 def compare_relation(report: ParityReport, ref: Sequence[np.ndarray], got: Sequence[np.ndarray],
                      cand: np.ndarray, classes: np.ndarray, threshold: float) -> None:
-    """Add one batch: ``ref``/``got`` are (owner, couple, front, facing) of PyTorch and onnxruntime."""
+    """Add one batch: ``ref``/``got`` are (owner, couple, front) of PyTorch and onnxruntime."""
     pairs = cand > 0
     valid = classes >= 0
     diff = 0.0
@@ -65,8 +65,7 @@ def compare_relation(report: ParityReport, ref: Sequence[np.ndarray], got: Seque
         agreeing += int(((r[pairs] > threshold) == (g[pairs] > threshold)).sum())
         decisions += int(pairs.sum())
     if valid.any():
-        for r, g in zip(ref[2:], got[2:], strict=True):  # front probabilities, facing vectors of real nodes
-            diff = max(diff, float(np.abs(r[valid] - g[valid]).max()))
+        diff = max(diff, float(np.abs(ref[2][valid] - got[2][valid]).max()))
     report.add(diff, agreeing, decisions)
 
 

@@ -1,8 +1,10 @@
-"""The `export` stage: the trained relation network and detector to ONNX, checked, quantised and timed.
+"""The `export` stage: the trained relation network, detector and facing network to ONNX, checked, quantised and timed.
 
-1. export: relation (static N = max_objects; dynamic N), detector (dynamic batch), ``onnx.checker``;
+1. export: relation (static N = max_objects; dynamic N), detector (dynamic batch), facing network (dynamic batch;
+   ``export_facing_checked``: checked against PyTorch on the test images' vehicle crops), ``onnx.checker``;
    the detector is an optional input: without it (``pipeline.skip=[detector]``) the bundle holds the
-   relation network only, and every detector step below is left out;
+   relation network only, and every detector step below is left out; so is the facing network (no facing stage, or
+   one that found no 3D truth to learn from: ``"facing": null``);
 2. parity against PyTorch on the test split (relation: every test image, both variants; detector:
    ``export.parity.detector_images`` images); a miss of the tolerances fails the stage;
 3. INT8: onnxruntime dynamic quantisation of the dynamic relation model (``export.int8.op_types``), and
@@ -30,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from deepword.detection.letterbox import preprocess
+from deepword.inference.facing_net import FACING_FILE, FACING_INPUT, FACING_OUTPUT, vehicle_crops
 from deepword.inference.runtime import (
     BUNDLE_FILE,
     DETECTOR_FILE,
@@ -93,14 +96,17 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
 
 def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
                  operating_point: dict | None = None, detector_ap: dict | None = None,
-                 min_sides: dict | None = None, end_to_end: dict | None = None, search: dict | None = None) -> None:
+                 min_sides: dict | None = None, end_to_end: dict | None = None, search: dict | None = None,
+                 facing: dict | None = None) -> None:
     """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector. The
     detector's ``operating_point`` ({class name: score threshold}) and ``min_side`` ({class name: shorter box
     side in image pixels}), chosen on val, are what inference keeps; ``score_threshold`` is the lower bound of
     what its decoding returns at all. ``ap``: the detector stage's
     val/test AP, so that reports on this bundle can show it beside the end-to-end rows. ``end_to_end``: the method
     for detected boxes and the rules fitted on train it may fall back on (``end_to_end_entry``). ``search``: the grid
-    the operating point was chosen from (``operating_point_search``), which ``deepword tune`` searches again."""
+    the operating point was chosen from (``operating_point_search``), which ``deepword tune`` searches again.
+    ``facing``: the facing network's crop settings and val accuracy (``"facing": null`` and no facing.onnx without
+    one: ``deepword.inference.facing_net.OnnxFacing``)."""
     detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
                                                                       "score_threshold", "class_names")}
     if detector is not None:
@@ -109,10 +115,11 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
         detector["ap"] = detector_ap or {}
         if search is not None:
             detector["operating_point_search"] = search
-    files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE})}
+    files = {**RELATION_FILES, "priors": PRIORS_FILE, **({} if det_cfg is None else {"detector": DETECTOR_FILE}),
+             **({} if facing is None else {"facing": FACING_FILE})}
     bundle = {"relation": {"inputs": meta["inputs"], "decode": meta["decode"], "has_roles": meta["has_roles"],
-                           "facing_val_acc": meta.get("facing_val_acc"), "model": meta["model"]},
-              "detector": detector, "end_to_end": end_to_end, "files": files, **extra}
+                           "model": meta["model"]},
+              "detector": detector, "facing": facing, "end_to_end": end_to_end, "files": files, **extra}
     (out_dir / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
 
 
@@ -233,6 +240,41 @@ def export_detector_checked(det_net, det_cfg: dict, ds, test: list, out_dir: Pat
     return report, metrics
 
 
+def export_facing_checked(facing_dir: Path | None, ds, test: list, out_dir: Path, ex) -> tuple[dict | None, dict]:
+    """facing.onnx, checked against PyTorch on the test images' vehicle crops (a miss fails the stage): the bundle's
+    ``facing`` entry and the ``export.facing.*`` metrics; (None, {}) without a trained facing network."""
+    import torch
+
+    # imported here: they load torch, which importing this module must not
+    from stages.export.onnx_export import export_facing
+    from stages.facing.stage import load_network as load_facing
+
+    if facing_dir is None:
+        return None, {}
+    net, meta = load_facing(facing_dir)
+    if net is None:
+        return None, {}
+    size, margin = int(meta["input_size"]), float(meta["margin"])
+    export_facing(net, out_dir / FACING_FILE, size)
+    crops = [vehicle_crops(load_image(ds.root, r), r, size, margin)[1] for r in test]
+    crops = np.concatenate(crops) if crops else np.zeros((0, 3, size, size), np.uint8)
+    diff = 0.0
+    if len(crops):
+        with torch.no_grad():
+            ref = net(torch.from_numpy(crops)).numpy()
+        got = ort_session(out_dir / FACING_FILE, int(ex.latency.threads)).run([FACING_OUTPUT], {FACING_INPUT: crops})[0]
+        diff = float(np.abs(ref - got).max())
+        agreeing = float(np.mean(((ref * got).sum(1) > 0) | (np.linalg.norm(ref, axis=1) < 1e-6)) * 100)
+        if diff > float(ex.parity.max_abs_diff) or agreeing < float(ex.parity.min_agreement):
+            raise ValueError(f"export: facing model: max abs diff {diff:.3g} (limit {ex.parity.max_abs_diff}), "
+                             f"{agreeing:.2f} % of the test vehicles' directions agree (limit "
+                             f"{ex.parity.min_agreement}); not shipped")
+    entry = {"input_size": size, "margin": margin, "val_acc": float(meta["val_acc"])}
+    return entry, {"export.facing.parity_max_abs_diff": diff, "export.facing.parity_vehicles": float(len(crops)),
+                   "export.facing.params": float(sum(p.numel() for p in net.parameters())),
+                   "export.facing.size_mb": size_mb(out_dir / FACING_FILE), "export.facing.val_acc": entry["val_acc"]}
+
+
 def end_to_end_entry(ds, e2e_cfg, min_box_px: float, seed: int) -> tuple[dict, object | None]:
     """``export.json``'s ``end_to_end`` entry ({"method": name, "rules": {rule: fitted parameters}}) and the method's
     fallback rule (None for ``deepword``). The paper's IoU rule is fitted on the train split exactly as the evaluate
@@ -341,11 +383,12 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
     export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
     quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
-    write_bundle(out_dir, meta, det_cfg, {}, end_to_end=end_to_end)
-
     test = _limit(ds.subset("test"), ex.parity.images)
     if not test:
         raise ValueError("export: the test split is empty; parity and latency need test images")
+    facing, facing_metrics = export_facing_checked(inputs.get("facing"), ds, test, out_dir, ex)
+    write_bundle(out_dir, meta, det_cfg, {}, end_to_end=end_to_end, facing=facing)
+
     graphs = [build_graph(r, load_image(ds.root, r), in_cfg, priors.wheel_vehicle, priors.wheel_wheel) for r in test]
     threads, threshold = int(ex.latency.threads), float(meta["decode"]["threshold"])
     tol, agree = float(ex.parity.max_abs_diff), float(ex.parity.min_agreement)
@@ -372,7 +415,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                                     for c, g in (ex.operating_point.get("min_side_grid") or {}).items()},
                   "min_box_px": float(ex.min_box_px), "match_iou": float(ex.operating_point.match_iou),
                   "smoothing": int(ex.operating_point.get("smoothing", 0))}
-        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search)
+        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search, facing)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -386,7 +429,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         "export.relation.folded_first_conv": float(folds_first_conv(net)),
         "export.relation.size_mb": size_mb(out_dir / RELATION_FILES["static"]),
         "export.relation.int8.size_mb": size_mb(out_dir / RELATION_FILES["int8"]),
-        **det_metrics,
+        **det_metrics, **facing_metrics,
     }
     metrics.update(int8_accuracy_change(ds, out_dir, test, graphs, float(ex.min_box_px)))
     lat_graphs = graphs[: int(ex.latency.images)]
@@ -409,5 +452,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
         registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads},
-                 operating_point, det_ap, min_sides, end_to_end, search)
+                 operating_point, det_ap, min_sides, end_to_end, search, facing)
     return metrics

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deepword.inference.facing_net import OnnxFacing
 from deepword.inference.footprints import (
     CalibrationError,
     beside_top_view,
@@ -168,10 +169,11 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, frame=None) -> P
     return path
 
 
-def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[list[Record], dict]:
+def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> tuple[list[Record], dict]:
     """Footprints for every prediction with a camera (``--calibration`` or the record's own), frame by frame as the
     bev stage estimates them (``estimate_frames``: one instant's images together, with the bev stage's prior and
-    fusion radius); returns the predictions with ``objects_3d`` and {frame_id: Frame}."""
+    fusion radius, each vehicle's facing from the bundle's facing network where it has one); returns the predictions
+    with ``objects_3d`` (and ``facing``) and {frame_id: Frame}. ``rgb_of(record)``: the image's pixels."""
 
     calibration, per_image = None, {}
     files = args.calibration or []
@@ -207,6 +209,9 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record]) -> tuple[li
         prior = load_prior(bev_dir)
     except CalibrationError as exc:
         raise InferError(str(exc)) from None
+    facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
+    if facing_net is not None:   # each vehicle's facing: the footprints' heading vote (docs/bev.md, "Front and back")
+        preds = [facing_net.annotate(p, rgb_of(p)) for p in preds]
     views = [(pred, cam) for pred in preds
              if (cam := camera_of(pred, per_image.get(pred.image, calibration))) is not None]
     frames = estimate_frames(views, prior, load_fuse_radius(bev_dir))
@@ -258,7 +263,7 @@ def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, 
     """``labels.jsonl`` with the footprints where there are cameras (``add_footprints``), the first ``overlays``
     overlays (each with its image's top view), each frame's fused footprints ``footprints.jsonl`` and the top views of
     frames of several images ``top_views/`` beside the overlays."""
-    preds, frames = add_footprints(args, dirs, preds)
+    preds, frames = add_footprints(args, dirs, preds, rgb_of)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
         frame = frames.get(pred.frame_id)

@@ -110,33 +110,14 @@ def role_counts(front: torch.Tensor, role: torch.Tensor, valid: torch.Tensor, co
             "order_known": ordered.sum()}
 
 
-FACING_KEYS = ("facing_right", "facing_known")
-
-
-def facing_known(target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """(B, N) the nodes with a facing target: valid ones whose ``target`` (B, N, 2) is a unit vector (it is 0 where the
-    data has none: wheels, 2D-only labels, vehicles too far to tell, padding)."""
-    return (target.abs().sum(-1) > 0) & valid.bool()
-
-
-def facing_counts(facing: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> dict[str, torch.Tensor]:
-    """``facing_right`` of ``facing_known``: the nodes with a facing target whose facing vector (B, N, 2) lies within
-    90 deg of it (``deepword.facing``: the vehicle's front told from its back)."""
-    known = facing_known(target, valid)
-    right = ((facing * target.to(facing.dtype)).sum(-1) > 0) & known
-    return {"facing_right": right.sum(), "facing_known": known.sum()}
-
-
 def role_percentages(c: dict[str, float]) -> dict[str, float]:
-    """``role_acc`` and ``order_acc`` (percent) of summed ``role_counts``, ``facing_acc`` of summed ``facing_counts``;
-    nothing where none is known (a dataset without roles, without 3D truth)."""
+    """``role_acc`` and ``order_acc`` (percent) of summed ``role_counts``; nothing where no role is known (a dataset
+    without roles)."""
     out = {}
     if c["role_known"] > 0:
         out["role_acc"] = 100.0 * c["role_right"] / c["role_known"]
     if c["order_known"] > 0:
         out["order_acc"] = 100.0 * c["order_right"] / c["order_known"]
-    if c.get("facing_known", 0) > 0:
-        out["facing_acc"] = 100.0 * c["facing_right"] / c["facing_known"]
     return out
 
 

@@ -14,11 +14,9 @@ from deepword.metrics import Counts
 from deepword.relation_graph import SplitInputs, mirror_coords, node_tensor
 from stages.relation.augment import AugmentConfig, augment_crops
 from stages.relation.decode import (
-    FACING_KEYS,
     ROLE_KEYS,
     decode_couples,
     decode_owners,
-    facing_counts,
     metrics_from_counts,
     relation_counts,
     role_counts,
@@ -45,8 +43,8 @@ class GraphDataset(Dataset):
     """One graph per image, unpadded (``collate_graphs`` pads a batch to its largest graph, not to
     max_objects: padding never changes real outputs, and most images hold far fewer objects, so the
     backbone, the N x N graph part and the copies all shrink). ``hflip``: probability of mirroring an
-    image's graph left-right (crops flipped, x coordinates mirrored, the facing targets' x negated); distance
-    ratios, adjacency, targets and roles are unchanged by it. ``augment``: appearance augmentation of the crops
+    image's graph left-right (crops flipped, x coordinates mirrored); distance ratios, adjacency,
+    targets and roles are unchanged by it. ``augment``: appearance augmentation of the crops
     (``augment.augment_crops``), for training only. ``box_warp``: a random lens-like warp of the image's
     boxes (``warp.random_box_warp``), for training only."""
 
@@ -56,7 +54,7 @@ class GraphDataset(Dataset):
         self.crops = torch.from_numpy(split.crops)
         self.offsets = split.offsets
         self.tensors = {k: torch.from_numpy(getattr(split, k)) for k in
-                        ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role", "facing", "evaluated")}
+                        ("coords", "classes", "valid", "adj", "cand", "owner", "couple", "role", "evaluated")}
         self.hflip = hflip
         self.augment = augment if augment is not None and augment.active else None
         self.box_warp = box_warp if box_warp is not None and box_warp.active else None
@@ -67,14 +65,13 @@ class GraphDataset(Dataset):
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         start, stop = int(self.offsets[i]), int(self.offsets[i + 1])
         k = stop - start
-        item = {key: v[i, :k, :k] if key in PAIR_FIELDS else v[i, :k] for key, v in self.tensors.items()}
+        item = {key: v[i, :k, :k] if v.dim() == 3 and key != "coords" else v[i, :k] for key, v in self.tensors.items()}
         item["classes"] = item["classes"].long()
         item["role"] = item["role"].long()
         crops = self.crops[start:stop]
         if self.hflip > 0 and torch.rand(()) < self.hflip:
             crops = crops.flip(-1)
             item["coords"] = mirror_coords(item["coords"])
-            item["facing"] = item["facing"] * torch.tensor([-1.0, 1.0])
         if self.box_warp is not None:
             item["coords"] = random_box_warp(item["coords"], self.box_warp)
         if self.augment is not None:
@@ -123,33 +120,29 @@ class RelationDataModule(L.LightningDataModule):
 
 
 class RelationCounts(Metric):
-    """Sums of ``decode.relation_counts``, ``decode.role_counts`` and ``decode.facing_counts`` over batches (and
-    processes, under DDP)."""
+    """Sums of ``decode.relation_counts`` and ``decode.role_counts`` over batches (and processes, under DDP)."""
 
     def __init__(self, **metric_options):
         super().__init__(**metric_options)
-        for key in COUNT_KEYS + ROLE_KEYS + FACING_KEYS:
+        for key in COUNT_KEYS + ROLE_KEYS:
             self.add_state(key, default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
 
     def update(self, counts: dict[str, torch.Tensor]) -> None:
-        for key in COUNT_KEYS + ROLE_KEYS + FACING_KEYS:
+        for key in COUNT_KEYS + ROLE_KEYS:
             setattr(self, key, getattr(self, key) + counts[key].to(torch.long))
 
     def compute(self) -> dict[str, float]:
-        """The §7 percentages, the role head's ``role_acc`` / ``order_acc`` (where roles are known) and the facing
-        head's ``facing_acc`` (where the data has 3D truth)."""
+        """The §7 percentages and the role head's ``role_acc`` / ``order_acc`` (where roles are known)."""
         return {**metrics_from_counts({k: float(getattr(self, k)) for k in COUNT_KEYS}),
-                **role_percentages({k: float(getattr(self, k)) for k in ROLE_KEYS + FACING_KEYS})}
+                **role_percentages({k: float(getattr(self, k)) for k in ROLE_KEYS})}
 
-    def update_batch(self, decisions: tuple[torch.Tensor, torch.Tensor], outputs: tuple[torch.Tensor, ...],
+    def update_batch(self, decisions: tuple[torch.Tensor, torch.Tensor], front: torch.Tensor,
                      batch: dict[str, torch.Tensor]) -> None:
-        """Adds one batch: its (owner, couple) decisions and the network's (owner, couple, front, facing) outputs."""
+        """Adds one batch: its (owner, couple) decisions and the role head's front probabilities."""
         pred_owner, pred_couple = decisions
-        front, facing = outputs[2], outputs[3]
         self.update({**relation_counts(pred_owner, batch["owner"], pred_couple, batch["couple"], batch["classes"],
                                        batch["evaluated"]),
-                     **role_counts(front, batch["role"], batch["valid"], batch["couple"]),
-                     **facing_counts(facing, batch["facing"], batch["valid"])})
+                     **role_counts(front, batch["role"], batch["valid"], batch["couple"])})
 
 
 class RelationModule(L.LightningModule):
@@ -195,7 +188,7 @@ class RelationModule(L.LightningModule):
             gate_logits = self.model.gate.logits(pair_geometry(batch["coords"]))
         return relation_loss(outputs, batch, lc["pos_weight"], lc["neg_weight"], lc["role_weight"],
                              lc.get("rank_weight", 0.0), self.hparams.decode.get("min_containment", 0.0),
-                             gate_logits, gate_weight, lc.get("facing_weight", 0.0))
+                             gate_logits, gate_weight)
 
     def training_step(self, batch, batch_idx):
         losses = self._loss(self(batch), batch)
@@ -210,7 +203,7 @@ class RelationModule(L.LightningModule):
 
     def decide(self, outputs, batch):
         dc = self.hparams.decode
-        owner_scores, couple_scores = outputs[:2]
+        owner_scores, couple_scores, _ = outputs
         pred_owner = decode_owners(owner_scores, batch["classes"], batch["cand"], dc["threshold"], dc["one_owner"],
                                    batch["coords"], dc.get("min_containment", 0.0))
         pred_couple = decode_couples(couple_scores, batch["classes"], batch["cand"], dc["threshold"])
@@ -221,7 +214,7 @@ class RelationModule(L.LightningModule):
         loss = self._loss(outputs, batch)["loss"]
         self.log("val/loss", loss, on_epoch=True, batch_size=len(batch["classes"]), sync_dist=True)
         self.val_loss.update(loss.detach(), len(batch["classes"]))
-        self.val_counts.update_batch(self.decide(outputs, batch), outputs, batch)
+        self.val_counts.update_batch(self.decide(outputs, batch), outputs[2], batch)
 
     def on_validation_epoch_end(self):
         metrics = self.val_counts.compute()
@@ -255,5 +248,5 @@ def score_split(module: RelationModule | list[RelationModule], split: SplitInput
     counts = RelationCounts(sync_on_compute=False)
     for batch in DataLoader(GraphDataset(split), batch_size=batch_size, collate_fn=collate_graphs):
         outputs = mean_outputs([m(batch) for m in modules])
-        counts.update_batch(modules[0].decide(outputs, batch), outputs, batch)
+        counts.update_batch(modules[0].decide(outputs, batch), outputs[2], batch)
     return counts.compute()

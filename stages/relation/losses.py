@@ -1,13 +1,12 @@
 """The relation network's training losses: the paper's weighted L2 on the 0/1 relation matrices, the
-wheels' front/rear role, the owner ranking (an addition, ``relation.loss.rank_weight``), the geometry
-gate's own loss (an addition, ``relation.loss.gate_weight``) and the vehicles' facing (an addition,
-``relation.loss.facing_weight``)."""
+wheels' front/rear role, the owner ranking (an addition, ``relation.loss.rank_weight``) and the geometry
+gate's own loss (an addition, ``relation.loss.gate_weight``)."""
 
 from __future__ import annotations
 
 import torch
 
-from stages.relation.decode import allowed_owners, facing_known, type_masks
+from stages.relation.decode import allowed_owners, type_masks
 
 
 def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, pos_weight: float,
@@ -40,32 +39,17 @@ def owner_ranking(scores: torch.Tensor, target: torch.Tensor, allowed: torch.Ten
     return (nll * has_owner.to(scores.dtype)).sum() / has_owner.sum().clamp_min(1)
 
 
-FACING_SHARPNESS = 4.0  # the facing loss's logistic slope on the projection of the vector onto the truth
-
-
-def facing_loss(facing: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Mean over the nodes with a facing target of softplus(-FACING_SHARPNESS x <facing, target>): a logistic loss on
-    which way the vector points along the true direction, so its length grows with the network's certainty. 0 (with
-    a gradient path) where the batch has no target."""
-    known = facing_known(batch["facing"], batch["valid"]).to(facing.dtype)
-    along = (facing * batch["facing"].to(facing.dtype)).sum(-1)
-    per_node = torch.nn.functional.softplus(-FACING_SHARPNESS * along)
-    return (per_node * known).sum() / known.sum().clamp_min(1.0)
-
-
 def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, neg_weight: float,
                   role_weight: float, rank_weight: float = 0.0, min_containment: float = 0.0,
-                  gate_logits: torch.Tensor | None = None, gate_weight: float = 0.0,
-                  facing_weight: float = 0.0) -> dict[str, torch.Tensor]:
+                  gate_logits: torch.Tensor | None = None, gate_weight: float = 0.0) -> dict[str, torch.Tensor]:
     """L2 losses on candidate wheel-vehicle and wheel-wheel pairs, plus the wheels' role (front/rear) BCE,
     plus (``rank_weight`` > 0) the owner ranking over the vehicles the decode may choose (``min_containment``),
     plus (``gate_weight`` > 0) the geometry gate's own ranking: the owner ranking of its logits (B, N, N)
     over those same vehicles. Trained only through the product with the cosine, the gate stays near 1
     wherever the cosines already separate the training pairs, which they do from appearance; its own
     ranking makes it a geometric owner classifier (bottom alignment, position in the box). Measured
-    (docs/domain.md): better in domain, worse on the held-out families, so it is off by default. Plus
-    (``facing_weight`` > 0) the vehicles' facing (``facing_loss``)."""
-    owner_scores, couple_scores, front, facing = outputs
+    (docs/domain.md): better in domain, worse on the held-out families, so it is off by default."""
+    owner_scores, couple_scores, front = outputs
     wv, ww = type_masks(batch["classes"])
     cand = batch["cand"].bool()
     owner = weighted_l2(owner_scores, batch["owner"], wv & cand, pos_weight, neg_weight)
@@ -85,7 +69,5 @@ def relation_loss(outputs, batch: dict[str, torch.Tensor], pos_weight: float, ne
     p = front.clamp(1e-6, 1 - 1e-6)
     bce = -(target * torch.log(p) + (1 - target) * torch.log(1 - p))  # lets a NaN through to the loss check
     role = (bce * known).sum() / known.sum().clamp_min(1.0)
-    faces = facing_loss(facing, batch) if facing_weight > 0 else owner.new_zeros(())
-    return {"loss": owner + couple + role_weight * role + rank_weight * rank + gate_weight * gate
-            + facing_weight * faces, "owner": owner, "couple": couple, "role": role, "rank": rank, "gate": gate,
-            "facing": faces}
+    return {"loss": owner + couple + role_weight * role + rank_weight * rank + gate_weight * gate, "owner": owner,
+            "couple": couple, "role": role, "rank": rank, "gate": gate}

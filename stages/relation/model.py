@@ -3,8 +3,7 @@
     x (B, N, 7, S, S) --backbone--> h (B, N, H) --GAT re-weighting of adj (Eq. 3-5)--> W'
     --residual graph convolution (W' row-normalised)--> node features --two heads--> L2-normalised embeddings
     --> cosine scores: ownership (wheel-vehicle pairs) and couples (wheel-wheel pairs); a role head
-    gives each wheel's probability of being a front wheel (orders predicted couples rear -> front); a facing
-    head (an addition) gives each vehicle's image direction from its rear to its front (``deepword.facing``).
+    gives each wheel's probability of being a front wheel (orders predicted couples rear -> front).
     Optionally (``geometry_gate``, an addition) a learned gate of the pair's relative box geometry
     multiplies the ownership cosines.
 
@@ -165,8 +164,7 @@ class ModelConfig:
 class RelationNet(nn.Module):
     """Inputs: x (B, N, 7, S, S) node tensors, adj (B, N, N) edge weights (self-loops on valid nodes),
     cand (B, N, N) 0/1 candidate pairs. Outputs: ownership scores (B, N, N), couple scores (B, N, N),
-    both cosines multiplied by cand, front probability (B, N) and facing (B, N, 2): for a vehicle node, the image
-    direction from its rear to its front, its length the network's certainty (read for vehicles only)."""
+    both cosines multiplied by cand, and front probability (B, N)."""
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
@@ -178,9 +176,6 @@ class RelationNet(nn.Module):
         self.couple_head = nn.Linear(cfg.hidden, cfg.embed_dim)
         self.role_head = nn.Linear(cfg.hidden, 1)
         self.gate = GeometryGate() if cfg.geometry_gate else None
-        # ADDITION to the paper: which way a vehicle faces, from its crop (lights, where the cabin sits) and the graph;
-        # made last, so that the other layers' initial weights are those of a network without it
-        self.facing_head = nn.Linear(cfg.hidden, 2)
 
     def embed(self, x: torch.Tensor) -> torch.Tensor:
         """Backbone over every node: (B, N, 7, S, S) -> (B, N, hidden)."""
@@ -223,7 +218,7 @@ class RelationNet(nn.Module):
     def readout(self, h: torch.Tensor, weights: torch.Tensor, cand: torch.Tensor, gate: torch.Tensor | None):
         """``relate``'s tail: residual graph convolution with the row-normalised edge weights (B, N, N),
         the two embedding heads, their cosines times cand, the ownership cosines times ``gate`` (B, N, N)
-        (the geometry gate's output, None without one), the front probability and the facing vector."""
+        (the geometry gate's output, None without one), and the front probability."""
         for layer in self.gcn:  # residual: a node keeps its own features beside the neighbours' mean
             h = h + F.relu(layer(weights @ h))
         owner = F.normalize(self.owner_head(h), dim=-1)
@@ -234,7 +229,7 @@ class RelationNet(nn.Module):
             owner_scores = owner_scores * gate
         couple_scores = (couple @ couple.transpose(1, 2)) * cand
         front = torch.sigmoid(self.role_head(h).squeeze(-1))
-        return owner_scores, couple_scores, front, self.facing_head(h)
+        return owner_scores, couple_scores, front
 
     def forward(self, x: torch.Tensor, adj: torch.Tensor, cand: torch.Tensor):
         # the boxes are the node tensor's constant coordinate planes (channels 3-6), read at one pixel
@@ -264,7 +259,7 @@ class RelationEnsemble(nn.Module):
 
 
 def mean_outputs(outputs: list[tuple[torch.Tensor, ...]]) -> tuple[torch.Tensor, ...]:
-    """The element-wise mean of several networks' (owner, couple, front, facing) outputs."""
+    """The element-wise mean of several networks' (owner, couple, front) outputs."""
     return tuple(torch.stack(parts).mean(0) for parts in zip(*outputs, strict=True))
 
 

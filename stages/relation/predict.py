@@ -32,8 +32,6 @@ class RelationPredictor:
         self.one_owner = bool(meta["decode"]["one_owner"])
         self.min_containment = float(meta["decode"].get("min_containment", 0.0))
         self.has_roles = bool(meta["has_roles"])
-        acc = meta.get("facing_val_acc")  # percent, as OnnxRelation reads it
-        self.facing_acc = None if acc is None else float(acc) / 100.0
         self.priors = priors
 
     @classmethod
@@ -48,8 +46,7 @@ class RelationPredictor:
         return build_graph(rec, rgb, self.inputs, self.priors.wheel_vehicle, self.priors.wheel_wheel)
 
     def scores(self, graphs: Sequence[ImageGraph]):
-        """Ownership and couple scores (B, N, N), front probabilities (B, N) and facing vectors (B, N, 2), N = largest
-        graph."""
+        """Ownership and couple scores (B, N, N) and front probabilities (B, N), N = largest graph."""
         import torch
 
         n = max([len(g.classes) for g in graphs] + [1])
@@ -66,8 +63,8 @@ class RelationPredictor:
             adj[i, :k, :k], cand[i, :k, :k] = torch.from_numpy(g.adj), torch.from_numpy(g.cand.astype(np.float32))
             classes[i, :k] = torch.from_numpy(g.classes.astype(np.int64))
         with torch.no_grad():
-            owner, couple, front, facing = self.net(node_tensor(crops, coords), adj, cand)
-        return owner, couple, front, facing, classes, cand, coords
+            owner, couple, front = self.net(node_tensor(crops, coords), adj, cand)
+        return owner, couple, front, classes, cand, coords
 
     def predict_many(self, records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray],
                      batch_size: int = 16) -> list[Record]:
@@ -78,13 +75,13 @@ class RelationPredictor:
         for start in range(0, len(records), batch_size):
             chunk = records[start:start + batch_size]
             graphs = [self.graph(rec, load_rgb(rec)) for rec in chunk]
-            owner, couple, front, facing, classes, cand, coords = self.scores(graphs)
+            owner, couple, front, classes, cand, coords = self.scores(graphs)
             pred_owner = decode_owners(owner, classes, cand, self.threshold, self.one_owner, coords,
                                        self.min_containment)
             pred_couple = decode_couples(couple, classes, cand, self.threshold)
             for i, rec in enumerate(chunk):
                 out.append(prediction_record(rec, pred_owner[i].numpy(), pred_couple[i].numpy(), front[i].numpy(),
-                                             self.has_roles, facing[i].numpy(), self.facing_acc))
+                                             self.has_roles))
         return out
 
     def predict(self, rec: Record, rgb: np.ndarray) -> Record:

@@ -27,7 +27,7 @@ from deepword.word_format import load_image, open_dataset
 from pipeline.tracking import stage_run_info
 from stages.relation.augment import AugmentConfig
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
-from stages.relation.warm_start import fine_tuning, load_start, start_states
+from stages.relation.warm_start import fine_tuning, start_states
 from stages.relation.warp import BoxWarpConfig
 from stages.training.checkpoints import best_and_latest, weight_averaging
 from stages.training.init_source import INIT_INPUT
@@ -129,8 +129,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                             if name in ("wheel_acc", "image_acc", "pair_f1")})
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain_config(rel)["decode"],
-        "has_roles": members[0].has_roles, "facing_val_acc": facing_val_acc(rel, val_metrics), "seed": seeds[0],
-        "seeds": seeds, "ensemble": n_members,
+        "has_roles": members[0].has_roles, "seed": seeds[0], "seeds": seeds, "ensemble": n_members,
         "best_epoch": best_epoch, "best_epochs": [m.best_epoch for m in members], "metrics": metrics,
         "curves": history, "member_curves": [m.history for m in members[1:]]}, indent=1))
     # the first member's curves (an ensemble's others are in relation.json's member_curves)
@@ -139,14 +138,6 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     shutil.rmtree(out_dir / "checkpoints", ignore_errors=True)  # relation.pt holds the best weights
     shutil.rmtree(out_dir / "members", ignore_errors=True)
     return metrics
-
-
-def facing_val_acc(rel, val_metrics: dict) -> float | None:
-    """The facing head's val accuracy (percent), which inference writes beside its vectors and the footprints trust
-    them by; None where it was not trained (``relation.loss.facing_weight`` 0) or val has no 3D truth: no vectors."""
-    if float(rel.loss.get("facing_weight", 0.0)) <= 0:
-        return None
-    return val_metrics.get("facing_acc")
 
 
 def plain_config(node) -> dict:
@@ -215,7 +206,7 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
     module = new_module()
     if start is not None:  # a resumed attempt's last.ckpt (trainer.fit below) then replaces them
-        load_start(module.model, start)
+        module.model.load_state_dict(start)
     augment = AugmentConfig.from_cfg(plain.get("augment"))
     box_warp = BoxWarpConfig.from_cfg(plain.get("box_warp"))
     workers = loader_workers(rel.train.get("num_workers"), tr.accelerator)

@@ -87,26 +87,7 @@ def check(path: Path, state: dict, cfg) -> None:
 
     expected = RelationNet(ModelConfig.from_cfg(cfg.relation)).state_dict()
     for member in member_states(state, int(cfg.relation.get("ensemble", 1)), path):
-        check_fits(without_new_facing(expected, member), member, path, "init.relation", _group_of(path))
-
-
-FACING_PREFIX = "facing_head."
-
-
-def without_new_facing(expected: dict, state: dict) -> dict:
-    """``expected`` without the facing head's keys when ``state`` has none (a network trained before the head): that
-    head alone starts from scratch; every other key must still fit."""
-    if any(k.startswith(FACING_PREFIX) for k in state):
-        return expected
-    return {k: v for k, v in expected.items() if not k.startswith(FACING_PREFIX)}
-
-
-def load_start(net, start: dict) -> None:
-    """A member's starting weights into ``net`` (all of them, but a facing head the start lacks: ``check`` tested
-    every key and shape at plan time)."""
-    missing, unexpected = net.load_state_dict(start, strict=False)
-    if unexpected or any(not k.startswith(FACING_PREFIX) for k in missing):
-        net.load_state_dict(start)  # strict: raises naming the keys
+        check_fits(expected, member, path, "init.relation", _group_of(path))
 
 
 def resolve(cfg, context) -> dict | None:

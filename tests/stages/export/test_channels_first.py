@@ -41,7 +41,7 @@ def _inputs(batch: int, n: int, seed: int = 1):
 
 
 def _assert_outputs_close(got, ref):
-    assert len(got) == len(ref) == 4   # owner, couple, front, facing
+    assert len(got) == len(ref) == 3
     for g, r in zip(got, ref, strict=True):
         assert tuple(g.shape) == tuple(r.shape)
         torch.testing.assert_close(torch.as_tensor(g), r, atol=1e-5, rtol=0)

@@ -90,7 +90,7 @@ def test_every_backbone_composes_and_builds(backbone, size):
     x = torch.zeros(1, 3, 7, size, size)
     adj = torch.eye(3).unsqueeze(0)
     with torch.no_grad():
-        owner = net(x, adj, torch.zeros(1, 3, 3))[0]
+        owner, _, _ = net(x, adj, torch.zeros(1, 3, 3))
     assert owner.shape == (1, 3, 3) and count_parameters(net) > 0 and size_mb(net) > 0
 
 

@@ -46,8 +46,8 @@ def _inputs(max_objects: int, size: int = 16, n_images: int = 2):
 def test_output_shapes_per_backbone(backbone, size):
     net = _net(backbone=backbone)
     x, adj, cand, _ = _inputs(12, size=size)
-    owner, couple, front, facing = net(x, adj, cand)
-    assert owner.shape == couple.shape == (2, 12, 12) and front.shape == (2, 12) and facing.shape == (2, 12, 2)
+    owner, couple, front = net(x, adj, cand)
+    assert owner.shape == couple.shape == (2, 12, 12) and front.shape == (2, 12)
     assert torch.all(owner.abs() <= 1 + 1e-5) and torch.all((front >= 0) & (front <= 1))
     assert torch.all(owner[cand == 0] == 0)
 
@@ -238,8 +238,8 @@ def test_geometry_gate_is_an_opt_in_symmetric_gate_on_the_ownership_cosines():
     moved = coords.clone()
     moved[:, 0] += 0.1                                                      # the same node features, box moved
     with torch.no_grad():
-        owner, couple, _, _ = net.relate(h, adj, cand, coords)
-        owner_moved, couple_moved, _, _ = net.relate(h, adj, cand, moved)
+        owner, couple, _ = net.relate(h, adj, cand, coords)
+        owner_moved, couple_moved, _ = net.relate(h, adj, cand, moved)
         plain = _net()
         plain.load_state_dict({k: v for k, v in net.state_dict().items() if not k.startswith("gate.")})
         owner_plain = plain.relate(h, adj, cand, coords)[0]
@@ -265,7 +265,7 @@ def test_ensemble_decides_on_the_mean_of_its_members_scores():
         alone = [m(x, adj, cand) for m in members]
         together = ensemble(x, adj, cand)
     assert ensemble.cfg == cfg and count_parameters(ensemble) == 2 * count_parameters(members[0])
-    for k in range(4):  # owner, couple, front, facing
+    for k in range(3):  # owner, couple, front
         torch.testing.assert_close(together[k], (alone[0][k] + alone[1][k]) / 2)
         assert not torch.allclose(together[k], alone[0][k])
     with pytest.raises(ValueError, match="differ in configuration"):

@@ -1,0 +1,93 @@
+"""The facing network outside torch: each vehicle box's crop, the facing vectors between the image and the crop, and
+the exported network in onnxruntime (``OnnxFacing``), which writes each vehicle's vector into a record for the
+footprints' heading vote (``deepword.facing``; docs/bev.md, "Front and back").
+
+A crop squeezes its box (grown by a margin) to a square, so a direction in the crop is not the same direction in the
+image: the network learns and answers in crop pixels (``to_crop``), and its answers are turned back into image pixels
+(``to_image``) with their length, the network's certainty, kept.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from deepword.facing import with_facing
+from deepword.relation_graph import crop_objects
+from deepword.word_format import VEHICLE, Record
+
+FACING_FILE = "facing.onnx"
+FACING_INPUT, FACING_OUTPUT = "crops", "facing"
+
+
+def grown_sizes(xyxy: np.ndarray, margin: float) -> np.ndarray:
+    """(N, 2) width and height of each box grown by ``margin`` x its size on each side: what its crop squeezes."""
+    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
+    wh = np.maximum(xyxy[:, 2:] - xyxy[:, :2], 1e-6)
+    return wh * (1 + 2 * margin)
+
+
+def to_crop(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
+    """Image directions (N, 2) of the boxes ``xyxy`` as unit directions in their square crops."""
+    v = np.asarray(vectors, dtype=np.float64) / grown_sizes(xyxy, margin)
+    return (v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+
+
+def to_image(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
+    """Crop vectors (N, 2) as image vectors: the image direction, the crop vector's length."""
+    v = np.asarray(vectors, dtype=np.float64)
+    d = v * grown_sizes(xyxy, margin)
+    d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return (d * np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+
+
+def vehicle_crops(rgb: np.ndarray, rec: Record, size: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """The record's vehicle rows (M,) and their crops (M, 3, size, size) uint8."""
+    rows = np.flatnonzero(rec.class_ids == VEHICLE)
+    return rows, crop_objects(rgb, rec.xyxy[rows], size, margin)
+
+
+class OnnxFacing:
+    """The bundle's facing network (``FACING_FILE``) in onnxruntime: each vehicle box's vector, the mean of the crop's
+    and its mirror image's answers (the flip it trained with), written into records with its val accuracy."""
+
+    def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
+        from deepword.inference.runtime import BUNDLE_FILE, ort_session
+
+        bundle_dir = Path(bundle_dir)
+        meta = json.loads((bundle_dir / BUNDLE_FILE).read_text()).get("facing")
+        if not meta:
+            raise FileNotFoundError(f"{bundle_dir / BUNDLE_FILE}: the bundle has no facing network")
+        self.input_size, self.margin = int(meta["input_size"]), float(meta["margin"])
+        self.accuracy = float(meta["val_acc"]) / 100.0
+        self.session = ort_session(bundle_dir / FACING_FILE, threads)
+
+    @classmethod
+    def from_bundle(cls, bundle_dir: str | os.PathLike, threads: int = 1) -> OnnxFacing | None:
+        """The bundle's facing network, or None for a bundle without one."""
+        from deepword.inference.runtime import BUNDLE_FILE
+
+        meta = json.loads((Path(bundle_dir) / BUNDLE_FILE).read_text())
+        return cls(bundle_dir, threads) if meta.get("facing") else None
+
+    def crop_vectors(self, crops: np.ndarray) -> np.ndarray:
+        """(M, 2) crop vectors of (M, 3, S, S) uint8 crops, flip-averaged."""
+        if len(crops) == 0:
+            return np.zeros((0, 2), np.float32)
+        plain = self.session.run([FACING_OUTPUT], {FACING_INPUT: np.ascontiguousarray(crops)})[0]
+        mirror = self.session.run([FACING_OUTPUT], {FACING_INPUT: np.ascontiguousarray(crops[..., ::-1])})[0]
+        return (plain + mirror * np.array([-1.0, 1.0], np.float32)) / 2
+
+    def vectors(self, rec: Record, rgb: np.ndarray) -> dict[int, np.ndarray]:
+        """{vehicle box_id: image vector} of the record's vehicle boxes."""
+        rows, crops = vehicle_crops(rgb, rec, self.input_size, self.margin)
+        image = to_image(self.crop_vectors(crops), rec.xyxy[rows], self.margin)
+        return {int(rec.box_ids[r]): image[k] for k, r in enumerate(rows)}
+
+    def annotate(self, rec: Record, rgb: np.ndarray) -> Record:
+        """``rec`` with its vehicles' vectors and their val accuracy in ``extra`` (``deepword.facing.with_facing``)."""
+        return replace(rec, extra=with_facing(rec.extra, self.vectors(rec, rgb), self.accuracy))

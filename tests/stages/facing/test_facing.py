@@ -1,0 +1,157 @@
+"""The facing network: its crops and targets from the 3D truth, the crop <-> image vectors, the stage on renders of
+the project's own generator (a few frames, two epochs), its export checked against PyTorch, the runtime that writes
+each vehicle's vector and val accuracy into records, and a dataset without 3D truth (no network, no vectors)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from deepword.facing import box_facings, record_facing, record_facing_accuracy
+from deepword.inference.facing_net import OnnxFacing, to_crop, to_image, vehicle_crops
+from deepword.word_format import difficulty_subsets, write_dataset_index, write_records
+from stages.facing.model import FacingNet, facing_loss
+from stages.facing.stage import CONFIG_FILE, WEIGHTS_FILE, split_crops
+from stages.facing.stage import run as run_facing
+
+FACING_CFG = {"input_size": 24, "margin": 0.1, "widths": [4, 8], "hidden": 8,
+              "train": {"epochs": 2, "batch_size": 16, "lr": 0.003, "weight_decay": 0.0001, "box_jitter": 0.08,
+                        "threads": 1, "seed": 0, "limit_train_images": None}}
+TRAINER = {"accelerator": "cpu", "precision": "32-true"}
+
+
+def _stage_cfg(**facing) -> OmegaConf:
+    return OmegaConf.create({"facing": {**FACING_CFG, **facing}, "trainer": TRAINER, "seed": 0})
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> Path:
+    """A data-stage-like directory of four frames of the generator (16 images at 320x240 with 3D truth)."""
+    from stages.data.synword import FrameGenerator
+
+    cfg = OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[3] / "conf/data/synword.yaml"), resolve=True)
+    cfg["image_size"] = [320, 240]
+    cfg["lens"]["randomise"] = False
+    root = tmp_path_factory.mktemp("rendered")
+    records = []
+    for frame in range(4):
+        for camera, rgb, rec in FrameGenerator(cfg, seed=3).render_frame(frame):
+            rec = replace(rec, image=f"images/{camera}/{frame:06d}.png")
+            (root / rec.image).parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / rec.image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            records.append(rec)
+    write_records(root / "labels.jsonl", records)
+    images = [r.image for r in records]
+    splits = {"train": images[:8], "val": images[8:12], "test": images[12:]}
+    splits.update(difficulty_subsets(records[12:], 0))
+    write_dataset_index(root, root, splits)
+    return root
+
+
+def test_vectors_go_into_the_squeezed_crop_and_back_with_their_length():
+    boxes = np.array([[0.0, 0.0, 200.0, 50.0], [10.0, 10.0, 30.0, 30.0]])
+    image = np.array([[1.0, 1.0], [0.0, -1.0]]) / np.sqrt([[2.0], [1.0]])   # unit directions
+    crop = to_crop(image, boxes, 0.1)
+    assert crop[0] == pytest.approx(np.array([0.25, 1.0]) / np.hypot(0.25, 1.0))   # a wide box: x squeezed 4:1
+    assert np.linalg.norm(crop, axis=1) == pytest.approx([1.0, 1.0])
+    back = to_image(crop * np.array([[2.0], [0.5]]), boxes, 0.1)                   # lengths: the certainty, kept
+    assert back == pytest.approx(image * np.array([[2.0], [0.5]]), abs=1e-6)
+
+
+def test_train_crops_come_from_the_3d_truth_once_as_labelled_and_once_jittered(rendered):
+    from deepword.word_format import open_dataset
+
+    ds = open_dataset(rendered)
+    records = ds.subset("train")
+    known = sum(int(np.isfinite(box_facings(r)).all(axis=1).sum()) for r in records)
+    assert known > 0
+    crops, targets = split_crops(records, ds.root, 24, 0.1, 0.08, np.random.default_rng(0))
+    assert crops.shape == (2 * known, 3, 24, 24) and crops.dtype == np.uint8
+    assert np.linalg.norm(targets, axis=1) == pytest.approx(np.ones(2 * known), abs=1e-5)
+    plain, plain_targets = split_crops(records, ds.root, 24, 0.1, 0.08, None)
+    assert len(plain) == known and len(plain_targets) == known
+    flat = [replace(r, extra={}) for r in records]                                   # 2D labels only
+    assert len(split_crops(flat, ds.root, 24, 0.1, 0.08, None)[0]) == 0
+
+
+def test_the_loss_rewards_the_right_direction_and_grows_the_vector_with_certainty():
+    target = torch.tensor([[0.6, 0.8]])
+    assert facing_loss(torch.tensor([[1.2, 1.6]]), target) < facing_loss(torch.tensor([[0.3, 0.4]]), target) \
+        < facing_loss(torch.tensor([[-0.3, -0.4]]), target)
+    assert FacingNet((4, 8), 8)(torch.zeros((3, 3, 24, 24), dtype=torch.uint8)).shape == (3, 2)
+
+
+@pytest.fixture(scope="module")
+def trained(rendered, tmp_path_factory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("facing")
+    torch.set_num_threads(1)
+    return out, run_facing(_stage_cfg(), {"data": rendered}, out)
+
+
+def test_the_stage_trains_chooses_on_val_and_is_reproducible(rendered, trained, tmp_path):
+    out, metrics = trained
+    meta = json.loads((out / CONFIG_FILE).read_text())
+    assert meta["trained"] and (out / WEIGHTS_FILE).is_file() and (out / "artifacts/facing_curves.png").is_file()
+    assert metrics["facing.val.acc"] == max(r["val/facing_acc"] for r in meta["curves"]) == meta["val_acc"]
+    assert metrics["facing.val.vehicles"] > 0 and len(meta["curves"]) == 2
+    again = run_facing(_stage_cfg(), {"data": rendered}, tmp_path)
+    assert again["facing.val.acc"] == metrics["facing.val.acc"]
+    assert torch.load(tmp_path / WEIGHTS_FILE)["head.2.weight"].equal(torch.load(out / WEIGHTS_FILE)["head.2.weight"])
+
+
+def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rendered, trained, tmp_path):
+    from deepword.inference.runtime import BUNDLE_FILE
+    from deepword.word_format import load_image, open_dataset
+    from stages.export.stage import export_facing_checked
+    from stages.facing.stage import load_network
+
+    ds = open_dataset(rendered)
+    test = ds.subset("test")
+    ex = OmegaConf.create({"latency": {"threads": 1}, "parity": {"max_abs_diff": 1e-4, "min_agreement": 99.0}})
+    entry, metrics = export_facing_checked(trained[0], ds, test, tmp_path, ex)
+    assert entry["val_acc"] == trained[1]["facing.val.acc"] and metrics["export.facing.parity_max_abs_diff"] < 1e-4
+    (tmp_path / BUNDLE_FILE).write_text(json.dumps({"facing": entry}))
+    runtime = OnnxFacing.from_bundle(tmp_path)
+    net, _ = load_network(trained[0])
+    rec = next(r for r in test if (r.class_ids == 0).any())
+    rgb = load_image(ds.root, rec)
+    annotated = runtime.annotate(rec, rgb)
+    vehicles = {int(b) for b, c in zip(rec.box_ids, rec.class_ids, strict=True) if c == 0}
+    assert set(record_facing(annotated)) == vehicles
+    assert record_facing_accuracy(annotated, 0.5) == pytest.approx(entry["val_acc"] / 100, abs=1e-4)
+    rows, crops = vehicle_crops(rgb, rec, entry["input_size"], entry["margin"])
+    with torch.no_grad():
+        x = torch.from_numpy(crops)
+        mean = ((net(x) + net(x.flip(-1)) * torch.tensor([-1.0, 1.0])) / 2).numpy()
+    want = to_image(mean, rec.xyxy[rows], entry["margin"])
+    got = np.array([record_facing(annotated)[int(rec.box_ids[r])] for r in rows])
+    assert got == pytest.approx(want, abs=1e-3)                       # flip-averaged as the stage validated it
+    (tmp_path / BUNDLE_FILE).write_text(json.dumps({"facing": None}))
+    assert OnnxFacing.from_bundle(tmp_path) is None
+
+
+def test_without_3d_truth_there_is_no_network_and_nothing_is_shipped(rendered, tmp_path):
+    from deepword.word_format import open_dataset, read_records
+    from stages.export.stage import export_facing_checked
+
+    flat_root = tmp_path / "flat"
+    records = [replace(r, extra={}) for r in read_records(rendered / "labels.jsonl")]
+    for r in records:
+        (flat_root / r.image).parent.mkdir(parents=True, exist_ok=True)
+        (flat_root / r.image).write_bytes((rendered / r.image).read_bytes())
+    write_records(flat_root / "labels.jsonl", records)
+    splits = json.loads((rendered / "splits.json").read_text())
+    write_dataset_index(flat_root, flat_root, splits)
+    out = tmp_path / "facing"
+    out.mkdir()
+    assert run_facing(_stage_cfg(), {"data": flat_root}, out) == {"facing.trained": 0.0}
+    meta = json.loads((out / CONFIG_FILE).read_text())
+    assert not meta["trained"] and "3D truth" in meta["reason"] and not (out / WEIGHTS_FILE).exists()
+    assert export_facing_checked(out, open_dataset(flat_root), [], tmp_path, None) == (None, {})
