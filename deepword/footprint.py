@@ -505,7 +505,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     the vehicles resting on two or more wheels."""
     by_id = {int(b[6]): b for b in rec.boxes}
     facings = record_facing(rec) if use_relations else {}
-    facing_acc = record_facing_accuracy(rec, FACING_VAL_ACC)
+    facing_acc, facing_scale = record_facing_accuracy(rec, FACING_VAL_ACC), rec.extra.get(FACING_SCALE_KEY)
     owner = rec.owner_of() if use_relations else {}
     roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
     # a role head lists couples rear first: their order is a (weak) vote when the relations carry roles
@@ -569,7 +569,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                 conf *= float(np.mean([by_id[w][4] for w in used]))
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
                                 confidence=conf, role_vote=vote,
-                                facing_vote=facing_vote(cam, box, facings.get(vid), facing_acc)))
+                                facing_vote=facing_vote(cam, box, facings.get(vid), facing_acc, facing_scale)))
     return out
 
 
@@ -639,13 +639,19 @@ def facing_logit(accuracy: float) -> float:
 
 
 FACING_LOGIT = facing_logit(FACING_VAL_ACC)
+# A record's extra key: the factor, fitted on val (the facing stage's temperature scaling), that turns a facing vector's
+# projection onto a unit image direction into the log-odds that the vehicle's front lies that way
+FACING_SCALE_KEY = "facing_scale"
 
 
-def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None, accuracy: float = FACING_VAL_ACC) -> float:
+def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None, accuracy: float = FACING_VAL_ACC,
+                scale: float | None = None) -> float:
     """Log-odds, from a network's facing vector of the vehicle box (``deepword.facing``: image pixels, its length the
-    network's certainty), that ``box.yaw`` points to the front: ``facing_logit(accuracy)`` (the vectors' measured
-    accuracy) x the cosine between it and the image direction of ``box``'s own heading through ``cam``, x its length
-    (at most 1). 0 without a vector or where the heading's image direction is not defined."""
+    network's certainty), that ``box.yaw`` points to the front. With ``scale`` (``FACING_SCALE_KEY``: the facing
+    network's): ``scale`` x the vector's projection onto the image direction of ``box``'s own heading through ``cam``,
+    within +-``facing_logit(MAX_FACING_ACC)``; without (a detector's vectors): ``facing_logit(accuracy)`` (their
+    measured accuracy) x the cosine between the two x the vector's length (at most 1). 0 without a vector or where
+    the heading's image direction is not defined."""
     if facing is None:
         return 0.0
     f = np.asarray(facing, dtype=np.float64)
@@ -655,6 +661,9 @@ def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None, accuracy: f
     d = image_facing(cam, box.x, box.y, box.yaw, box.length, box.height)
     if d is None:
         return 0.0
+    if scale is not None:
+        cap = facing_logit(MAX_FACING_ACC)
+        return float(np.clip(float(scale) * float(np.dot(d, f)), -cap, cap))
     return facing_logit(accuracy) * float(np.dot(d, f)) / strength * min(strength, 1.0)
 
 

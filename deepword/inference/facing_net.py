@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from deepword.facing import with_facing
+from deepword.footprint import FACING_SCALE_KEY
 from deepword.relation_graph import crop_objects
 from deepword.word_format import VEHICLE, Record
 
@@ -53,7 +54,8 @@ def vehicle_crops(rgb: np.ndarray, rec: Record, size: int, margin: float) -> tup
 
 class OnnxFacing:
     """The bundle's facing network (``FACING_FILE``) in onnxruntime: each vehicle box's vector, the mean of the crop's
-    and its mirror image's answers (the flip it trained with), written into records with its val accuracy."""
+    and its mirror image's answers (the flip it trained with), written into records with its val accuracy and the
+    factor fitted on val that turns a vector's projection into log-odds (the footprints' vote)."""
 
     def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
         from deepword.inference.runtime import BUNDLE_FILE, ort_session
@@ -64,6 +66,7 @@ class OnnxFacing:
             raise FileNotFoundError(f"{bundle_dir / BUNDLE_FILE}: the bundle has no facing network")
         self.input_size, self.margin = int(meta["input_size"]), float(meta["margin"])
         self.accuracy = float(meta["val_acc"]) / 100.0
+        self.logit_scale = float(meta["logit_scale"])
         self.session = ort_session(bundle_dir / FACING_FILE, threads)
 
     @classmethod
@@ -88,6 +91,11 @@ class OnnxFacing:
         image = to_image(self.crop_vectors(crops), rec.xyxy[rows], self.margin)
         return {int(rec.box_ids[r]): image[k] for k, r in enumerate(rows)}
 
+    def with_vectors(self, extra: dict, vectors: dict[int, np.ndarray]) -> dict:
+        """A record's ``extra`` with ``vectors`` ({box_id: image vector}), their val accuracy
+        (``deepword.facing.with_facing``) and their log-odds scale (``deepword.footprint.FACING_SCALE_KEY``)."""
+        return {**with_facing(extra, vectors, self.accuracy), FACING_SCALE_KEY: round(self.logit_scale, 4)}
+
     def annotate(self, rec: Record, rgb: np.ndarray) -> Record:
-        """``rec`` with its vehicles' vectors and their val accuracy in ``extra`` (``deepword.facing.with_facing``)."""
-        return replace(rec, extra=with_facing(rec.extra, self.vectors(rec, rgb), self.accuracy))
+        """``rec`` with its vehicles' vectors (``with_vectors``)."""
+        return replace(rec, extra=self.with_vectors(rec.extra, self.vectors(rec, rgb)))

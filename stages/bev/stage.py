@@ -36,7 +36,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from deepword.facing import with_facing
 from deepword.footprint import (
     FootprintPrior,
     fit_prior,
@@ -281,7 +280,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
 
 def with_facing_vectors(read: dict, facing_net, root) -> dict:
     """Each method's predictions ({method: {image: record}}) with the facing network's vector of every vehicle box
-    and its val accuracy (``deepword.facing.with_facing``), computed once per image and set of boxes."""
+    (``OnnxFacing.with_vectors``), computed once per image and set of boxes."""
     vectors = {}
     out = {}
     for method, records in read.items():
@@ -290,7 +289,7 @@ def with_facing_vectors(read: dict, facing_net, root) -> dict:
             key = (image, rec.boxes[:, :4].tobytes(), rec.boxes[:, 6].tobytes())
             if key not in vectors:
                 vectors[key] = facing_net.vectors(rec, load_image(root, rec))
-            out[method][image] = replace(rec, extra=with_facing(rec.extra, vectors[key], facing_net.accuracy))
+            out[method][image] = replace(rec, extra=facing_net.with_vectors(rec.extra, vectors[key]))
     return out
 
 

@@ -379,3 +379,60 @@ def _relation_items(batch: int, size: int) -> list[dict]:
                       "owner": torch.from_numpy(owner), "couple": torch.zeros((n, n), dtype=torch.uint8),
                       "role": torch.full((n,), -1, dtype=torch.long)})
     return items
+
+
+VEHICLE_SHARE = 1 / 3   # of an image's objects (MEAN_OBJECTS), as the relation probe draws them
+
+
+def facing(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the facing stage's training: epochs x train steps x the probed step (every train vehicle twice, as
+    labelled and with its box jittered), plus a flip-averaged val pass an epoch. An upper bound: only vehicles with 3D
+    truth train, and the images per split are the configured ones before the generator drops any."""
+    import torch
+
+    from stages.facing.model import FacingNet, facing_loss
+    from stages.training.precision import BF16, resolve_precision
+
+    train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
+    if train_images is None:
+        return None
+    fc, tr = _plain(cfg.facing), _plain(cfg.trainer)
+    limit = fc["train"].get("limit_train_images")
+    train_images = min(train_images, int(limit)) if limit else train_images
+    per_image = MEAN_OBJECTS * VEHICLE_SHARE
+    copies = 2 if float(fc["train"]["box_jitter"]) > 0 else 1
+    train_crops, val_crops = train_images * per_image * copies, (val_images or 0) * per_image
+    batch, size = int(fc["train"]["batch_size"]), int(fc["input_size"])
+    precision = resolve_precision(tr.get("precision", "32-true"), tr.get("accelerator", "auto"))
+    device, sync = _device(tr.get("accelerator", "auto"))
+    threads = int(fc["train"].get("threads") or 1)
+    with _threads(threads):
+        torch.manual_seed(0)
+        net = FacingNet(tuple(fc["widths"]), int(fc["hidden"])).to(device).train()
+        opt = torch.optim.AdamW(net.parameters(), lr=1e-3)
+        crops = torch.randint(0, 256, (batch, 3, size, size), dtype=torch.uint8, device=device)
+        targets = torch.nn.functional.normalize(torch.randn(batch, 2, device=device), dim=1)
+
+        def step():
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == BF16):
+                loss = facing_loss(net(crops).float(), targets)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+
+        step_s = timed_steps(step, sync)
+        net.eval()
+
+        def forward():
+            with torch.no_grad():
+                net(crops)
+
+        forward_s = timed_steps(forward, sync)
+    epochs = int(fc["train"]["epochs"])
+    steps = math.ceil(train_crops / batch)
+    epoch_s = steps * step_s + 2 * math.ceil(val_crops / batch) * forward_s
+    return {"seconds": epochs * epoch_s,
+            "note": f"{epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + val) ({_precision_name(precision)}, "
+                    f"batch {batch}, {threads} threads); at most: only vehicles with 3D truth train",
+            "hint": f"~{epoch_s:.0f} s an epoch: fewer epochs (facing.train.epochs=N, now {epochs}), "
+                    "facing.train.box_jitter=0 (one copy of each vehicle), or a GPU (trainer=gpu)"}

@@ -269,7 +269,8 @@ def export_facing_checked(facing_dir: Path | None, ds, test: list, out_dir: Path
             raise ValueError(f"export: facing model: max abs diff {diff:.3g} (limit {ex.parity.max_abs_diff}), "
                              f"{agreeing:.2f} % of the test vehicles' directions agree (limit "
                              f"{ex.parity.min_agreement}); not shipped")
-    entry = {"input_size": size, "margin": margin, "val_acc": float(meta["val_acc"])}
+    entry = {"input_size": size, "margin": margin, "val_acc": float(meta["val_acc"]),
+             "logit_scale": float(meta["logit_scale"])}
     return entry, {"export.facing.parity_max_abs_diff": diff, "export.facing.parity_vehicles": float(len(crops)),
                    "export.facing.params": float(sum(p.numel() for p in net.parameters())),
                    "export.facing.size_mb": size_mb(out_dir / FACING_FILE), "export.facing.val_acc": entry["val_acc"]}

@@ -61,7 +61,7 @@ def test_scratch_and_mixed_jobs_are_what_the_docs_say(sample):
         assert pool["stream"] not in (job["shift"]["data"]["stream"], job["data"]["sources"]["synword"]["stream"])
         assert pool["use"] == {"train": "train", "val": "val", "test": None}   # val: the N images' own
         assert job["data"]["sources"]["synword"]["frames"] == default["data"]["frames"]
-        assert job["init"]["source"] == "scratch" and job["pipeline"]["skip"] == ["bev"]   # shift_data stays
+        assert job["init"]["source"] == "scratch" and job["pipeline"]["skip"] == ["facing", "bev"]   # shift_data stays
         assert job["trainer"]["threads"] == 1 and job["relation"]["train"]["threads"] == 1
         assert job["relation"]["train"]["seed"] == default["relation"]["train"]["seed"]
     assert scratch["data"]["sources"]["synword"]["use"] == {"train": None, "val": None, "test": "test"}

@@ -34,7 +34,7 @@ def test_datasets_experiment_runs_the_default_configuration_on_ten_root_seeds():
     assert ours["relation"]["train"].pop("threads") == 1
     default["relation"]["train"].pop("threads")
     assert ours["relation"] == default["relation"] and ours["eval"] == default["eval"]
-    assert ours["pipeline"]["skip"] == ["detector", "bev"]
+    assert ours["pipeline"]["skip"] == ["detector", "facing", "bev"]
 
 
 def test_table3_is_one_job_of_the_default_configuration():
@@ -51,7 +51,7 @@ def test_paper_tables_leave_the_detector_out_and_keep_every_stage_their_numbers_
 
     cfg = OmegaConf.create(compose_config([f"experiment={table}"]))
     selected, left_out = select_stages(load_stages(cfg), None, list(cfg.pipeline.skip))
-    assert left_out == {"detector": "pipeline.skip", "bev": "pipeline.skip"}
+    assert left_out == {"detector": "pipeline.skip", "facing": "pipeline.skip", "bev": "pipeline.skip"}
     assert selected == ["data", "shift_data", "priors", "relation", "export", "evaluate"]  # held-out rows too
 
 

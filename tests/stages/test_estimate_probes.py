@@ -14,7 +14,7 @@ def _cfg(*overrides):
         return compose(config_name="config", overrides=["profile=smoke", "trainer.threads=1", *overrides])
 
 
-@pytest.mark.parametrize("stage", ["detector", "relation"])
+@pytest.mark.parametrize("stage", ["detector", "relation", "facing"])
 def test_a_real_probe_times_steps_and_says_how(stage):
     out = getattr(estimate, stage)(_cfg())
     assert math.isfinite(out["seconds"]) and out["seconds"] > 0
@@ -36,6 +36,11 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
                "relation.train.limit_val_images=null", "relation.train.batch_size=8")
     steps = math.ceil(train * 2 / 8)  # each train image twice: once as annotated, once as a detector might see it
     assert estimate.relation(rel)["seconds"] == pytest.approx(3 * 2 * (steps + math.ceil(val / 8)) * 0.5)
+    fac = _cfg("facing.train.epochs=3", "facing.train.batch_size=16")
+    crops, val_crops = train * estimate.MEAN_OBJECTS * estimate.VEHICLE_SHARE, val * estimate.MEAN_OBJECTS / 3
+    # every train vehicle twice (as labelled and jittered); val flip-averaged: two forward passes a batch
+    want = 3 * (math.ceil(2 * crops / 16) + 2 * math.ceil(val_crops / 16)) * 0.5
+    assert estimate.facing(fac)["seconds"] == pytest.approx(want)
 
 
 def test_no_frames_no_estimate():
