@@ -1,8 +1,8 @@
 """Top-view figures in the style of the paper's Fig. 1: the ego car (the outline of its camera rig, its nose
 forward) with range rings around the vehicle frame's origin, true footprints (green), estimated footprints
 coloured by the camera whose estimate leads them (thicker where two or more cameras saw the vehicle), each with
-an arrow to its front where wheel roles gave the direction or a bare axis line where they did not, wheel
-contact points (black dots), and a legend."""
+an arrow to its front where a vote (wheel roles, a facing vector) gave the direction or a bare axis line where none
+did, wheel contact points (black dots), and a legend."""
 
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool 
         x = entry(x, "truth (dot: front)", lambda x: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), TRUE_RGB, 2))
     x = entry(x, "ego", lambda x: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), EGO_RGB, -1))
     x = entry(x, "wheel contact", lambda x: cv2.circle(img, (x + 6, y), 2, WHEEL_RGB, -1, cv2.LINE_AA))
-    x = entry(x, "front (roles)", lambda x: cv2.arrowedLine(img, (x, y), (x + 12, y), TEXT_RGB, 1, cv2.LINE_AA,
+    x = entry(x, "front (voted)", lambda x: cv2.arrowedLine(img, (x, y), (x + 12, y), TEXT_RGB, 1, cv2.LINE_AA,
                                                              tipLength=0.4))
     entry(x, "axis only", lambda x: cv2.line(img, (x, y), (x + 12, y), TEXT_RGB, 1, cv2.LINE_AA))
     x, y = 6, top + 30

@@ -207,7 +207,7 @@ def plot_curves(history: list[dict], path: Path) -> Path:
     ax_acc.plot(epochs, [r["val/facing_acc"] for r in history], marker="o", ms=3, color="tab:green")
     ax_acc.set_xlabel("epoch")
     ax_acc.set_ylabel("%")
-    ax_acc.set_title("val: vehicles whose vector points within 90 deg of the truth")
+    ax_acc.set_title("val accuracy (vector within 90 deg of the truth)")
     ax_acc.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

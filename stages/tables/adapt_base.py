@@ -48,14 +48,20 @@ def is_default_run(run: RunRecord, profile: str) -> bool:
         return False
     if not all(k in run.metrics for k in NEEDED_METRICS):
         return False
-    return all(_as_defined(run, k, v) for k, v in default_definition(profile).items())
+    definition = default_definition(profile)
+    return all(_as_defined(run, k, v, definition) for k, v in definition.items())
 
 
-def _as_defined(run: RunRecord, key: str, value: str) -> bool:
+def _as_defined(run: RunRecord, key: str, value: str, definition: dict[str, str] | None = None) -> bool:
     """The run's param is the profile's value, or the value the plan sized the profile's ``auto`` to on the run's host
-    (pipeline.sizing: logged as ``sized.<key>`` beside the config's ``<key>``)."""
+    (pipeline.sizing: logged as ``sized.<key>`` beside the config's ``<key>``), or, set outright, the most that ``auto``
+    may size it to (``<stage>.sizing.max_<name>`` of the profile: what a host fast enough gets, the budget a run pins
+    to compare with the default run on a slower or busy host)."""
     given = run.params.get(key, value)
-    return given == value or (value == "auto" and run.params.get(f"sized.{key}") == given)
+    if given == value or (value == "auto" and run.params.get(f"sized.{key}") == given):
+        return True
+    stage, _, name = key.rpartition(".")
+    return value == "auto" and (definition or {}).get(f"{stage}.sizing.max_{name}") == given
 
 
 def newest_default_run(runs: list[RunRecord], profile: str) -> RunRecord | None:

@@ -70,6 +70,10 @@ def test_a_default_run_sized_to_its_host_is_still_the_default():
     runs = [RunRecord("given", "default", 2, given, _metrics(60.0), QUICK),
             RunRecord("sized", "default", 1, sized, _metrics(70.0), QUICK)]
     assert headline_table(runs, "adapt")[1] == {"headline": "sized"}
+    cap = params["detector.sizing.max_epochs"]
+    pinned = params | {"detector.epochs": cap}   # the most auto may choose, set outright: the same budget
+    runs.insert(0, RunRecord("pinned", "default", 3, pinned, _metrics(65.0), QUICK))
+    assert headline_table(runs, "adapt")[1] == {"headline": "pinned"}
 
 
 def _adapt_run(name: str, recipe: str, draw: int, base: str, metrics: dict, start: int = 5, **extra) -> RunRecord:

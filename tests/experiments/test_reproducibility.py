@@ -47,7 +47,7 @@ def test_every_run_records_seed_and_git_commit(smoke_store):
 
     client = MlflowClient(smoke_store["uri"])
     runs = client.search_runs([client.get_experiment_by_name("deepword").experiment_id])
-    assert len(runs) == 9  # the parent and its eight stages
+    assert len(runs) == 10  # the parent and its nine stages
     for run in runs:
         assert run.data.tags["seed"] == "42", run.info.run_name
         commit = run.data.tags["git_commit"]
