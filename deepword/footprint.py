@@ -24,11 +24,11 @@ driving in a lane are parallel.
 ground truth do, the baselines do not). Where the wheels an estimate rests on carry roles that tell the ends apart
 (a rear and a front wheel of one side, both wheels of one axle, one wheel's role), its heading points to the
 vehicle's front and the estimate is ``directed``; otherwise (``box``: the cabin's fit picks the sign, a guess;
-wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. The relation
-network's facing head (and optionally the detector's) says for each vehicle box which way its front lies in the
-image (deepword/facing.py); each estimate's ``facing_vote`` weighs how well its heading, projected through its
-camera, agrees with it, by the head's measured accuracy, and the fusion sums those votes with the roles' and the
-heading prior's (``heading_vote``).
+wheels without roles) it is not, and headings are scored both over 360 deg and modulo 180 deg. The facing network
+(stage ``facing``; or a detector's facing head) says for each vehicle box which way its front lies in the image
+(deepword/facing.py); each estimate's ``facing_vote`` weighs how well its heading, projected through its camera,
+agrees with it, in log-odds calibrated on val, and the fusion sums those votes with the roles' and the heading
+prior's (``heading_vote``).
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
 scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
@@ -623,8 +623,8 @@ def heading_prior_logit(prior: FootprintPrior | None, box: Box3D) -> float:
     return logit if facing else -logit
 
 
-# How far the detector's facing is trusted where its records say nothing of it (``deepword.facing.FACING_ACC_KEY``; the
-# relation network's predictions carry their own measured accuracy): measured on the quick profile's val split with
+# How far a detector's facing head is trusted (its records carry no ``FACING_SCALE_KEY`` nor
+# ``deepword.facing.FACING_ACC_KEY``; the facing network's carry both): measured on the quick profile's val split with
 # `detector.facing=true` (docs/detector.md, "Facing"): the head points within 90 deg of the truth for FACING_VAL_ACC of
 # the detected vehicles matched to a true one (387; 65 % at the true centre cells), and its vectors' length hardly
 # tells the right ones from the wrong. To be measured again when the head changes.

@@ -248,11 +248,12 @@ def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_
 
 
 def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | None:
-    """How often the detector's facing head points the right way: over the test split's vehicles with 3D truth that
-    a detected vehicle box matches (IoU >= ``match_iou``, greedily by score: ``deepword.metrics.match_boxes``), the
+    """How often the facing vectors of the predictions (the facing network's, or a detector's facing head's) point
+    the right way: over the test split's vehicles with 3D truth that a predicted vehicle box matches (IoU >=
+    ``match_iou``, greedily by score: ``deepword.metrics.match_boxes``), the
     share (%) whose facing vector lies within 90 deg of the true one (``deepword.facing``: image directions from rear
-    to front), and how many there are. None when the predictions carry no facing (ground-truth boxes, a detector
-    without the head)."""
+    to front), and how many there are. None when the predictions carry no facing vectors (no facing network and a
+    detector without the head)."""
     from deepword.facing import box_facings, record_facing  # box_facings: what the heads learnt from
     from deepword.metrics import match_boxes
 

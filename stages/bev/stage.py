@@ -11,8 +11,10 @@ train), ``footprints/<boxes>_<method>.jsonl`` (fused footprints per frame) and `
 MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.detection_scores``: nuScenes AP at
 0.5/1/2/4 m, ATE, ASE, AOE, IoU, recall, precision) as ``bev.<boxes>.<method>.<subset>.<metric>`` for the subsets
 ``all``, ``two_wheels``, ``one_wheel``, ``no_wheel`` (within ``bev.max_range_m``) and the ``<lo>-<hi>m`` distance
-bins; with the detector's facing head ``bev.<boxes>.facing.{acc,vehicles}`` (``metrics.facing_agreement``: how often
-it points the right way on the matched test vehicles); and the paired medians as ``bev.<boxes>.<method>.<metric>``
+bins; where the boxes carry facing vectors (the bundle's facing network, which the stage runs on every vehicle box:
+``deepword.inference.facing_net.OnnxFacing``; else a detector's facing head) ``bev.<boxes>.facing.{acc,vehicles}``
+(``metrics.facing_agreement``: how often they point the right way on the matched test vehicles); and the paired
+medians as ``bev.<boxes>.<method>.<metric>``
 (matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
 visible) and ``hard`` (in a hard test image) within the range, and ``<lo>_<hi>m`` distance bins.
@@ -357,7 +359,7 @@ def render_medians(report: dict, part: dict, domain: str = "") -> list[str]:
 
 
 def render_facing(facing: dict, domain: str = "") -> list[str]:
-    return [f"- {domain}{boxes} boxes: the detector's facing head points within 90 deg of the true facing for "
+    return [f"- {domain}{boxes} boxes: the facing vectors point within 90 deg of the true facing for "
             f"{v['acc']:.1f} % of the {int(v['vehicles'])} matched vehicles with 3D truth" for boxes, v in facing.items()]
 
 
