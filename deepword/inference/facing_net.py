@@ -66,7 +66,8 @@ class OnnxFacing:
             raise FileNotFoundError(f"{bundle_dir / BUNDLE_FILE}: the bundle has no facing network")
         self.input_size, self.margin = int(meta["input_size"]), float(meta["margin"])
         self.accuracy = float(meta["val_acc"]) / 100.0
-        self.logit_scale = float(meta["logit_scale"])
+        # None in a bundle exported before the scale was fitted: the vote then weighs by the accuracy alone
+        self.logit_scale = None if meta.get("logit_scale") is None else float(meta["logit_scale"])
         self.session = ort_session(bundle_dir / FACING_FILE, threads)
 
     @classmethod
@@ -94,7 +95,8 @@ class OnnxFacing:
     def with_vectors(self, extra: dict, vectors: dict[int, np.ndarray]) -> dict:
         """A record's ``extra`` with ``vectors`` ({box_id: image vector}), their val accuracy
         (``deepword.facing.with_facing``) and their log-odds scale (``deepword.footprint.FACING_SCALE_KEY``)."""
-        return {**with_facing(extra, vectors, self.accuracy), FACING_SCALE_KEY: round(self.logit_scale, 4)}
+        out = with_facing(extra, vectors, self.accuracy)
+        return out if self.logit_scale is None else {**out, FACING_SCALE_KEY: round(self.logit_scale, 4)}
 
     def annotate(self, rec: Record, rgb: np.ndarray) -> Record:
         """``rec`` with its vehicles' vectors (``with_vectors``)."""
