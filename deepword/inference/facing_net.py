@@ -57,26 +57,23 @@ class OnnxFacing:
     and its mirror image's answers (the flip it trained with), written into records with its val accuracy and the
     factor fitted on val that turns a vector's projection into log-odds (the footprints' vote)."""
 
-    def __init__(self, bundle_dir: str | os.PathLike, threads: int = 1):
-        from deepword.inference.runtime import BUNDLE_FILE, ort_session
+    def __init__(self, bundle_dir: str | os.PathLike, meta: dict, threads: int = 1):
+        """``meta``: the bundle's ``facing`` entry (``from_bundle`` reads it)."""
+        from deepword.inference.runtime import ort_session
 
-        bundle_dir = Path(bundle_dir)
-        meta = json.loads((bundle_dir / BUNDLE_FILE).read_text()).get("facing")
-        if not meta:
-            raise FileNotFoundError(f"{bundle_dir / BUNDLE_FILE}: the bundle has no facing network")
         self.input_size, self.margin = int(meta["input_size"]), float(meta["margin"])
         self.accuracy = float(meta["val_acc"]) / 100.0
         # None in a bundle exported before the scale was fitted: the vote then weighs by the accuracy alone
         self.logit_scale = None if meta.get("logit_scale") is None else float(meta["logit_scale"])
-        self.session = ort_session(bundle_dir / FACING_FILE, threads)
+        self.session = ort_session(Path(bundle_dir) / FACING_FILE, threads)
 
     @classmethod
     def from_bundle(cls, bundle_dir: str | os.PathLike, threads: int = 1) -> OnnxFacing | None:
         """The bundle's facing network, or None for a bundle without one."""
         from deepword.inference.runtime import BUNDLE_FILE
 
-        meta = json.loads((Path(bundle_dir) / BUNDLE_FILE).read_text())
-        return cls(bundle_dir, threads) if meta.get("facing") else None
+        meta = json.loads((Path(bundle_dir) / BUNDLE_FILE).read_text()).get("facing")
+        return cls(bundle_dir, meta, threads) if meta else None
 
     def crop_vectors(self, crops: np.ndarray) -> np.ndarray:
         """(M, 2) crop vectors of (M, 3, S, S) uint8 crops, flip-averaged."""

@@ -60,7 +60,7 @@ from deepword.rules.fallback import FALLBACKS, batch_with_fallback
 from deepword.word_format import SUBSETS, boxes_only, load_image, open_dataset
 from pipeline.tracking import stage_run_info
 from stages.export.latency import batches, cpu_ms, graph_batches, onnx_ms, torch_ms
-from stages.export.parity import detector_parity, relation_parity
+from stages.export.parity import ParityReport, detector_parity, relation_parity
 from stages.export.registry import register_models
 
 if TYPE_CHECKING:
@@ -240,38 +240,28 @@ def export_detector_checked(det_net, det_cfg: dict, ds, test: list, out_dir: Pat
     return report, metrics
 
 
-def export_facing_checked(facing_dir: Path | None, ds, test: list, out_dir: Path, ex) -> tuple[dict | None, dict]:
-    """facing.onnx, checked against PyTorch on the test images' vehicle crops (a miss fails the stage): the bundle's
-    ``facing`` entry and the ``export.facing.*`` metrics; (None, {}) without a trained facing network."""
+def export_facing_checked(net, meta: dict, crops: np.ndarray, out_dir: Path, ex) -> tuple[dict, dict]:
+    """facing.onnx of the trained facing network ``net`` (``stages.facing.stage.load_network``), checked against
+    PyTorch on ``crops`` (the test images' vehicle crops; a miss fails the stage, ``ParityReport.check``: a decision is
+    the direction a vector points, agreeing where the two point the same way): the bundle's ``facing`` entry and the
+    ``export.facing.*`` metrics."""
     import torch
 
-    # imported here: they load torch, which importing this module must not
+    # imported here: it loads torch, which importing this module must not
     from stages.export.onnx_export import export_facing
-    from stages.facing.stage import load_network as load_facing
 
-    if facing_dir is None:
-        return None, {}
-    net, meta = load_facing(facing_dir)
-    if net is None:
-        return None, {}
-    size, margin = int(meta["input_size"]), float(meta["margin"])
-    export_facing(net, out_dir / FACING_FILE, size)
-    crops = [vehicle_crops(load_image(ds.root, r), r, size, margin)[1] for r in test]
-    crops = np.concatenate(crops) if crops else np.zeros((0, 3, size, size), np.uint8)
-    diff = 0.0
+    export_facing(net, out_dir / FACING_FILE, int(meta["input_size"]))
+    report = ParityReport()
     if len(crops):
         with torch.no_grad():
             ref = net(torch.from_numpy(crops)).numpy()
         got = ort_session(out_dir / FACING_FILE, int(ex.latency.threads)).run([FACING_OUTPUT], {FACING_INPUT: crops})[0]
-        diff = float(np.abs(ref - got).max())
-        agreeing = float(np.mean(((ref * got).sum(1) > 0) | (np.linalg.norm(ref, axis=1) < 1e-6)) * 100)
-        if diff > float(ex.parity.max_abs_diff) or agreeing < float(ex.parity.min_agreement):
-            raise ValueError(f"export: facing model: max abs diff {diff:.3g} (limit {ex.parity.max_abs_diff}), "
-                             f"{agreeing:.2f} % of the test vehicles' directions agree (limit "
-                             f"{ex.parity.min_agreement}); not shipped")
-    entry = {"input_size": size, "margin": margin, "val_acc": float(meta["val_acc"]),
+        same_way = ((ref * got).sum(1) > 0) | (np.linalg.norm(ref, axis=1) < 1e-6)
+        report.add(float(np.abs(ref - got).max()), int(same_way.sum()), len(crops))
+    report.check("export: facing model", float(ex.parity.max_abs_diff), float(ex.parity.min_agreement))
+    entry = {"input_size": int(meta["input_size"]), "margin": float(meta["margin"]), "val_acc": float(meta["val_acc"]),
              "logit_scale": float(meta["logit_scale"])}
-    return entry, {"export.facing.parity_max_abs_diff": diff, "export.facing.parity_vehicles": float(len(crops)),
+    return entry, {**report.metrics("export.facing"), "export.facing.parity_vehicles": float(len(crops)),
                    "export.facing.params": float(sum(p.numel() for p in net.parameters())),
                    "export.facing.size_mb": size_mb(out_dir / FACING_FILE), "export.facing.val_acc": entry["val_acc"]}
 
@@ -368,6 +358,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     # imported here: it loads torch, which importing this module must not
     from stages.detector.model import load_detector
     from stages.export.onnx_export import export_relation, folds_first_conv
+    from stages.facing.stage import load_network as load_facing
     from stages.relation.model import count_parameters
     from stages.relation.stage import load_network
 
@@ -387,10 +378,20 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     test = _limit(ds.subset("test"), ex.parity.images)
     if not test:
         raise ValueError("export: the test split is empty; parity and latency need test images")
-    facing, facing_metrics = export_facing_checked(inputs.get("facing"), ds, test, out_dir, ex)
+    # the facing network (None: none trained, or no facing stage in the run), checked on the same test images' vehicles
+    facing_net, facing_meta = load_facing(inputs["facing"]) if "facing" in inputs else (None, None)
+    graphs, facing_crops = [], []
+    for r in test:   # each test image decoded once: its relation graph and its vehicles' crops
+        rgb = load_image(ds.root, r)
+        graphs.append(build_graph(r, rgb, in_cfg, priors.wheel_vehicle, priors.wheel_wheel))
+        if facing_net is not None:
+            facing_crops.append(vehicle_crops(rgb, r, int(facing_meta["input_size"]), float(facing_meta["margin"]))[1])
+    facing, facing_metrics = None, {}
+    if facing_net is not None:
+        facing, facing_metrics = export_facing_checked(facing_net, facing_meta, np.concatenate(facing_crops), out_dir,
+                                                       ex)
     write_bundle(out_dir, meta, det_cfg, {}, end_to_end=end_to_end, facing=facing)
 
-    graphs = [build_graph(r, load_image(ds.root, r), in_cfg, priors.wheel_vehicle, priors.wheel_wheel) for r in test]
     threads, threshold = int(ex.latency.threads), float(meta["decode"]["threshold"])
     tol, agree = float(ex.parity.max_abs_diff), float(ex.parity.min_agreement)
     reports = {

@@ -209,14 +209,12 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> 
         prior = load_prior(bev_dir)
     except CalibrationError as exc:
         raise InferError(str(exc)) from None
+    cams = {p.image: cam for p in preds if (cam := camera_of(p, per_image.get(p.image, calibration))) is not None}
     facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
-    if facing_net is not None:   # each vehicle's facing: the footprints' heading vote (docs/bev.md, "Front and back")
-        preds = [facing_net.annotate(p, rgb_of(p)) for p in preds]
-    views = [(pred, cam) for pred in preds
-             if (cam := camera_of(pred, per_image.get(pred.image, calibration))) is not None]
-    frames = estimate_frames(views, prior, load_fuse_radius(bev_dir))
-    in_view = {pred.image for pred, _ in views}
-    return [with_objects_3d(p, frames[p.frame_id]) if p.image in in_view else p for p in preds], frames
+    if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
+        preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p for p in preds]
+    frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir))
+    return [with_objects_3d(p, frames[p.frame_id]) if p.image in cams else p for p in preds], frames
 
 
 def infer(args) -> list[Record]:

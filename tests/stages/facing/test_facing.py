@@ -115,11 +115,12 @@ def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rende
     ds = open_dataset(rendered)
     test = ds.subset("test")
     ex = OmegaConf.create({"latency": {"threads": 1}, "parity": {"max_abs_diff": 1e-4, "min_agreement": 99.0}})
-    entry, metrics = export_facing_checked(trained[0], ds, test, tmp_path, ex)
+    net, meta = load_network(trained[0])
+    crops = np.concatenate([vehicle_crops(load_image(ds.root, r), r, meta["input_size"], meta["margin"])[1] for r in test])
+    entry, metrics = export_facing_checked(net, meta, crops, tmp_path, ex)
     assert entry["val_acc"] == trained[1]["facing.val.acc"] and metrics["export.facing.parity_max_abs_diff"] < 1e-4
     (tmp_path / BUNDLE_FILE).write_text(json.dumps({"facing": entry}))
     runtime = OnnxFacing.from_bundle(tmp_path)
-    net, _ = load_network(trained[0])
     rec = next(r for r in test if (r.class_ids == 0).any())
     rgb = load_image(ds.root, rec)
     annotated = runtime.annotate(rec, rgb)
@@ -138,8 +139,8 @@ def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rende
 
 
 def test_without_3d_truth_there_is_no_network_and_nothing_is_shipped(rendered, tmp_path):
-    from deepword.word_format import open_dataset, read_records
-    from stages.export.stage import export_facing_checked
+    from deepword.word_format import read_records
+    from stages.facing.stage import load_network
 
     flat_root = tmp_path / "flat"
     records = [replace(r, extra={}) for r in read_records(rendered / "labels.jsonl")]
@@ -154,4 +155,4 @@ def test_without_3d_truth_there_is_no_network_and_nothing_is_shipped(rendered, t
     assert run_facing(_stage_cfg(), {"data": flat_root}, out) == {"facing.trained": 0.0}
     meta = json.loads((out / CONFIG_FILE).read_text())
     assert not meta["trained"] and "3D truth" in meta["reason"] and not (out / WEIGHTS_FILE).exists()
-    assert export_facing_checked(out, open_dataset(flat_root), [], tmp_path, None) == (None, {})
+    assert load_network(out)[0] is None          # what the export stage checks: nothing to ship
