@@ -658,7 +658,7 @@ def facing_vote(cam: Camera, box: Box3D, facing: list[float] | None, accuracy: f
     strength = float(np.hypot(f[0], f[1]))
     if not strength > 1e-6:
         return 0.0
-    d = image_facing(cam, box.x, box.y, box.yaw, box.length, box.height)
+    d = image_facing(cam, box.x, box.y, box.yaw, box.length)
     if d is None:
         return 0.0
     if scale is not None:

@@ -37,13 +37,13 @@ def _calibrated_record(cam, vehicle: Box3D) -> Record:
 def test_image_facing_points_from_rear_to_front_and_turns_with_the_vehicle():
     cam = _camera()                       # the left camera, looking along +y
     v = Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5)  # beside the car, facing +x (the way the ego drives)
-    ahead = image_facing(cam, v.x, v.y, v.yaw, v.length, v.height)
-    back = image_facing(cam, v.x, v.y, math.pi, v.length, v.height)
+    ahead = image_facing(cam, v.x, v.y, v.yaw, v.length)
+    back = image_facing(cam, v.x, v.y, math.pi, v.length)
     assert ahead is not None and np.hypot(*ahead) == pytest.approx(1.0)
     assert back == pytest.approx(-ahead, abs=1e-9)
     # the left camera looks out to the car's left: the car's front (+x) lies to the image's right
     assert ahead[0] > 0.5
-    assert image_facing(cam, -0.2, -30.0, 0.0, 4.5, 1.5) is None  # behind the camera: outside its field of view
+    assert image_facing(cam, -0.2, -30.0, 0.0, 4.5) is None  # behind the camera: outside its field of view
 
 
 def test_targets_come_from_the_3d_truth_and_a_flip_mirrors_them():
@@ -51,7 +51,7 @@ def test_targets_come_from_the_3d_truth_and_a_flip_mirrors_them():
     v = Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5)
     rec = _calibrated_record(cam, v)
     facings = box_facings(rec)
-    assert facings[0] == pytest.approx(image_facing(cam, v.x, v.y, v.yaw, v.length, v.height))
+    assert facings[0] == pytest.approx(image_facing(cam, v.x, v.y, v.yaw, v.length))
     assert np.isnan(facings[1]).all()                                   # a wheel has none
     plain = replace(rec, extra={})
     assert np.isnan(box_facings(plain)).all()                           # 2D labels: none, and no error
@@ -122,7 +122,7 @@ def test_detection_records_carry_the_vehicles_facings_through_the_operating_poin
 def test_the_facing_vote_turns_a_backwards_heading():
     cam = _camera()
     truth = Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5)
-    seen = image_facing(cam, truth.x, truth.y, truth.yaw, truth.length, truth.height)
+    seen = image_facing(cam, truth.x, truth.y, truth.yaw, truth.length)
     assert facing_vote(cam, truth, list(seen)) == pytest.approx(FACING_LOGIT)
     backwards = replace(truth, yaw=math.pi)
     assert facing_vote(cam, backwards, list(seen * 0.5)) == pytest.approx(-0.5 * FACING_LOGIT)
