@@ -46,6 +46,16 @@ def test_image_facing_points_from_rear_to_front_and_turns_with_the_vehicle():
     assert image_facing(cam, -0.2, -30.0, 0.0, 4.5) is None  # behind the camera: outside its field of view
 
 
+def test_image_facing_of_a_vehicle_seen_end_on_points_down_to_the_nearer_end_whatever_its_height():
+    # on the ground the nearer of two points projects lower in the image; the vehicle's height plays no part (the
+    # faces' centres at half height lie near a camera's height, where which projects lower turned on that height)
+    cam = _camera()                       # the left camera at (0.85, 1.05, 1.0 m), looking along +y
+    away = image_facing(cam, 0.85, 6.0, math.pi / 2, 4.5)     # front to the far end: up the image
+    towards = image_facing(cam, 0.85, 3.5, -math.pi / 2, 4.5)  # front to the near end, close by: down the image
+    assert away is not None and towards is not None
+    assert away[1] < -0.99 and towards[1] > 0.99
+
+
 def test_targets_come_from_the_3d_truth_and_a_flip_mirrors_them():
     cam = _camera()
     v = Box3D(0.5, 5.0, 4.5, 1.8, 0.0, 1.5)
