@@ -248,21 +248,23 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     pops = populations(bcfg)
     results, detection, notes, fused_by, facing = {}, {}, [], {}, {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
+    reads = {}   # {boxes: {method: {image: record}}}
+    for boxes in bcfg.box_sources:
+        predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
+                       for m in bcfg.methods}
+        methods = [m for m in bcfg.methods if predictions[m].is_file()]
+        for m in bcfg.methods:
+            if m not in methods:
+                notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
+        if methods:
+            reads[boxes] = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
+                            for m in methods}
+    if facing_net is not None:   # the facing network's vectors replace any a detector wrote
+        reads = with_facing_vectors(reads, facing_net, ds.root)
     with shared_fits():   # the methods share their boxes: a vehicle fitted alike by two methods is fitted once
-        for boxes in bcfg.box_sources:
-            predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
-                           for m in bcfg.methods}
-            methods = [m for m in bcfg.methods if predictions[m].is_file()]
-            for m in bcfg.methods:
-                if m not in methods:
-                    notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
-            if not methods:
-                continue
+        for boxes, read in reads.items():
+            methods = list(read)
             results[boxes] = {}
-            read = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
-                    for m in methods}
-            if facing_net is not None:   # the facing network's vectors replace any a detector wrote
-                read = with_facing_vectors(read, facing_net, ds.root)
             agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
             if agreement is not None:
                 facing[boxes] = agreement
@@ -280,18 +282,23 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     return Domain(test, truth, cameras, results, detection, fused_by, notes, facing)
 
 
-def with_facing_vectors(read: dict, facing_net, root) -> dict:
-    """Each method's predictions ({method: {image: record}}) with the facing network's vector of every vehicle box
-    (``OnnxFacing.with_vectors``), computed once per image and set of boxes."""
-    vectors = {}
-    out = {}
-    for method, records in read.items():
-        out[method] = {}
-        for image, rec in records.items():
-            key = (image, rec.boxes[:, :4].tobytes(), rec.boxes[:, 6].tobytes())
-            if key not in vectors:
-                vectors[key] = facing_net.vectors(rec, load_image(root, rec))
-            out[method][image] = replace(rec, extra=facing_net.with_vectors(rec.extra, vectors[key]))
+def with_facing_vectors(reads: dict, facing_net, root) -> dict:
+    """Every box source's predictions ({boxes: {method: {image: record}}}) with the facing network's vector of each
+    vehicle box (``OnnxFacing.with_vectors``): each image decoded once, its vectors computed once per set of boxes
+    (the methods of one source share their boxes; labelled and detected boxes differ)."""
+    out = {boxes: {method: {} for method in read} for boxes, read in reads.items()}
+    for image in sorted({image for read in reads.values() for records in read.values() for image in records}):
+        rgb, vectors = None, {}
+        for boxes, read in reads.items():
+            for method, records in read.items():
+                rec = records.get(image)
+                if rec is None:
+                    continue
+                key = (rec.boxes[:, :4].tobytes(), rec.boxes[:, 6].tobytes())
+                if key not in vectors:
+                    rgb = load_image(root, rec) if rgb is None else rgb
+                    vectors[key] = facing_net.vectors(rec, rgb)
+                out[boxes][method][image] = replace(rec, extra=facing_net.with_vectors(rec.extra, vectors[key]))
     return out
 
 

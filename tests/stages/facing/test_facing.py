@@ -1,6 +1,7 @@
 """The facing network: its crops and targets from the 3D truth, the crop <-> image vectors, the stage on renders of
 the project's own generator (a few frames, two epochs), its export checked against PyTorch, the runtime that writes
-each vehicle's vector and val accuracy into records, and a dataset without 3D truth (no network, no vectors)."""
+each vehicle's vector and val accuracy into records (the bev stage: each image decoded once for all its box
+sources), and a dataset without 3D truth (no network, no vectors)."""
 
 from __future__ import annotations
 
@@ -106,7 +107,7 @@ def test_the_stage_trains_chooses_on_val_and_is_reproducible(rendered, trained, 
     assert torch.load(tmp_path / WEIGHTS_FILE)["head.2.weight"].equal(torch.load(out / WEIGHTS_FILE)["head.2.weight"])
 
 
-def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rendered, trained, tmp_path):
+def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rendered, trained, tmp_path, monkeypatch):
     from deepword.inference.runtime import BUNDLE_FILE
     from deepword.word_format import load_image, open_dataset
     from stages.export.stage import export_facing_checked
@@ -134,6 +135,20 @@ def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rende
     want = to_image(mean, rec.xyxy[rows], entry["margin"])
     got = np.array([record_facing(annotated)[int(rec.box_ids[r])] for r in rows])
     assert got == pytest.approx(want, abs=1e-3)                       # flip-averaged as the stage validated it
+
+    # the bev stage: both box sources' records of an image get their vectors from one decode of it
+    import stages.bev.stage as bev
+
+    moved = {r.image: replace(r, boxes=r.boxes + np.array([2.0, 1.0, 2.0, 1.0, 0, 0, 0])) for r in test}
+    reads = {"gt": {"logic": {r.image: r for r in test}, "deepword": {r.image: r for r in test}},
+             "detected": {"deepword": moved}}
+    decoded = []
+    monkeypatch.setattr(bev, "load_image", lambda root, r: decoded.append(r.image) or load_image(root, r))
+    out = bev.with_facing_vectors(reads, runtime, ds.root)
+    assert sorted(decoded) == sorted(r.image for r in test)
+    assert out["gt"]["logic"][rec.image].extra == annotated.extra == out["gt"]["deepword"][rec.image].extra
+    assert record_facing(out["detected"]["deepword"][rec.image]) == pytest.approx(
+        record_facing(runtime.annotate(moved[rec.image], rgb)))
     (tmp_path / BUNDLE_FILE).write_text(json.dumps({"facing": None}))
     assert OnnxFacing.from_bundle(tmp_path) is None
 
