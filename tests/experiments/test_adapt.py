@@ -21,6 +21,7 @@ from tests.sqlite_store import fresh_store
 
 SAMPLES = {"n25_draw0": (25, 0), "n25_draw1": (25, 1), "n50_draw0": (50, 0), "n50_draw1": (50, 1),
            "n100_draw0": (100, 0), "n200_draw0": (200, 0), "n400_draw0": (400, 0)}
+BY_NAME = {"n100_draw1": (100, 1), "n200_draw1": (200, 1)}   # second draws outside the sweep, run by name
 
 
 
@@ -37,7 +38,7 @@ def test_the_sweep_runs_four_recipes_on_seven_samples_two_jobs_at_a_time():
     assert params["adapt_recipe"].split(",") == ["finetune", "finetune_mixed", "scratch", "mixed"]
     assert sorted(p.stem for p in (CONF / "adapt_recipe").glob("*.yaml")) == sorted(params["adapt_recipe"].split(","))
     assert params["adapt_sample"].split(",") == list(SAMPLES)            # two draws where N <= 50
-    assert sorted(p.stem for p in (CONF / "adapt_sample").glob("*.yaml")) == sorted(SAMPLES)
+    assert sorted(p.stem for p in (CONF / "adapt_sample").glob("*.yaml")) == sorted({**SAMPLES, **BY_NAME})
     assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
 
 
@@ -48,9 +49,9 @@ def _steps(budget: dict, n: int) -> tuple[int, int]:
     return budget["detector_epochs"] * (train // 8), budget["relation_epochs"] * math.ceil(2 * train / 16)
 
 
-@pytest.mark.parametrize("sample", list(SAMPLES))
+@pytest.mark.parametrize("sample", list({**SAMPLES, **BY_NAME}))
 def test_scratch_and_mixed_jobs_are_what_the_docs_say(sample):
-    n, draw = SAMPLES[sample]
+    n, draw = {**SAMPLES, **BY_NAME}[sample]
     default = compose_config([])
     scratch, mixed = _job("scratch", sample), _job("mixed", sample)
     for job, recipe in ((scratch, "scratch"), (mixed, "mixed")):
