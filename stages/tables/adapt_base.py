@@ -52,7 +52,7 @@ def is_default_run(run: RunRecord, profile: str) -> bool:
     return all(_as_defined(run, k, v, definition) for k, v in definition.items())
 
 
-def _as_defined(run: RunRecord, key: str, value: str, definition: dict[str, str] | None = None) -> bool:
+def _as_defined(run: RunRecord, key: str, value: str, definition: dict[str, str]) -> bool:
     """The run's param is the profile's value, or the value the plan sized the profile's ``auto`` to on the run's host
     (pipeline.sizing: logged as ``sized.<key>`` beside the config's ``<key>``), or, set outright, the most that ``auto``
     may size it to (``<stage>.sizing.max_<name>`` of the profile: what a host fast enough gets, the budget a run pins
@@ -61,7 +61,7 @@ def _as_defined(run: RunRecord, key: str, value: str, definition: dict[str, str]
     if given == value or (value == "auto" and run.params.get(f"sized.{key}") == given):
         return True
     stage, _, name = key.rpartition(".")
-    return value == "auto" and (definition or {}).get(f"{stage}.sizing.max_{name}") == given
+    return value == "auto" and definition.get(f"{stage}.sizing.max_{name}") == given
 
 
 def newest_default_run(runs: list[RunRecord], profile: str) -> RunRecord | None:
