@@ -33,7 +33,8 @@ from stages.detector.warm_start import fine_tuning, load_start
 from stages.training.checkpoints import best_and_latest, weight_averaging
 from stages.training.init_source import INIT_INPUT
 from stages.training.loader_workers import loader_workers, usable_cores
-from stages.training.precision import BF16, resolve_precision
+from stages.training.memory_format import use_channels_last
+from stages.training.precision import BF16, resolve_precision, trains_on_gpu
 from stages.training.replicas import check_replicas_agree
 
 
@@ -104,9 +105,8 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
     mcfg = model_config(det)
     precision = resolve_precision(trainer_cfg.get("precision", "32-true"), trainer_cfg.get("accelerator", "auto"))
-    # channels_last only under bf16: oneDNN's fp32 NHWC convolution backward segfaults for narrow stems
-    # (an 8-channel one, torch 2.13); the bf16 kernels run every width tested.
-    channels_last = bool(det["channels_last"]) and precision == BF16
+    channels_last = use_channels_last(bool(det["channels_last"]), build_centernet(mcfg), precision == BF16,
+                                      trains_on_gpu(trainer_cfg.get("accelerator", "auto")), "the detector")
     module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"],
                              channels_last)
     if "init" in cfg:  # before training; a resumed attempt's last.ckpt below then replaces them

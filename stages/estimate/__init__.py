@@ -101,10 +101,12 @@ def _replicas(trainer: dict) -> int:
     return per_node * int(trainer.get("num_nodes", 1) or 1)
 
 
-def _precision_name(precision: str) -> str:
+def _precision_name(precision: str, channels_last: bool = False) -> str:
+    """``bf16`` / ``fp32`` (or Lightning's name), with `` NHWC`` where the network trains channels_last."""
     from stages.training.precision import BF16
 
-    return "bf16" if precision == BF16 else "fp32" if precision in ("32-true", "32") else precision
+    name = "bf16" if precision == BF16 else "fp32" if precision in ("32-true", "32") else precision
+    return name + (" NHWC" if channels_last else "")
 
 
 # -- detector ------------------------------------------------------------------------------------------------
@@ -135,6 +137,7 @@ def _probe_detector_epoch(cfg: DictConfig) -> dict | None:
     from stages.detector.losses import detector_loss
     from stages.detector.model import DOWN_RATIO, build_centernet, model_config
     from stages.training.loader_workers import loader_workers, usable_cores
+    from stages.training.memory_format import use_channels_last
     from stages.training.precision import BF16, resolve_precision
 
     train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
@@ -146,15 +149,16 @@ def _probe_detector_epoch(cfg: DictConfig) -> dict | None:
     precision = resolve_precision(trainer.get("precision", "32-true"), trainer.get("accelerator", "auto"))
     bf16 = precision == BF16
     device, sync = _device(trainer.get("accelerator", "auto"))
-    channels_last = bool(det.get("channels_last")) and bf16
-    fmt = torch.channels_last if channels_last else torch.contiguous_format
     crop = det["augment"].get("crop")
     width, height = (int(crop[0]), int(crop[1])) if crop else (int(det["input_width"]), int(det["input_height"]))
     threads = int(trainer.get("threads") or usable_cores())
     with _threads(threads):
         torch.manual_seed(0)
         mcfg = model_config(det)
-        net = build_centernet(mcfg).to(device).to(memory_format=fmt).train()
+        net = build_centernet(mcfg)
+        channels_last = use_channels_last(bool(det["channels_last"]), net, bf16, device.type != "cpu", "the detector")
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        net = net.to(device).to(memory_format=fmt).train()
         opt = torch.optim.AdamW(net.parameters(), lr=1e-4, fused=True)
         targets = _detector_targets(det, batch, width, height, device)
         images = torch.randn(batch, 3, height, width, device=device).contiguous(memory_format=fmt)
@@ -188,8 +192,9 @@ def _probe_detector_epoch(cfg: DictConfig) -> dict | None:
     val_batches = limited_batches(math.ceil((val_images or 0) / replicas), batch, det.get("limit_val_batches"))
     epoch_s = steps * train_step_s
     validation_s = val_batches * forward_s
-    how = (f"{steps} steps x {1000 * train_step_s:.0f} ms ({1000 * step_s:.0f} ms {_precision_name(precision)} step, "
-           f"batch {batch} at {width}x{height}, {threads} threads{', ' + device.type if device.type != 'cpu' else ''}; "
+    how = (f"{steps} steps x {1000 * train_step_s:.0f} ms ({1000 * step_s:.0f} ms "
+           f"{_precision_name(precision, channels_last)} step, batch {batch} at {width}x{height}, {threads} threads"
+           f"{', ' + device.type if device.type != 'cpu' else ''}; "
            f"{1000 * batch_load_s:.0f} ms loading, {workers} loader workers)")
     return {"epoch_s": epoch_s, "validation_s": validation_s, "how": how}
 
@@ -301,7 +306,8 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
 
     from deepword.relation_graph import InputConfig
     from stages.relation.lightning import RelationModule, collate_graphs
-    from stages.relation.model import ModelConfig
+    from stages.relation.model import ModelConfig, RelationNet
+    from stages.training.memory_format import use_channels_last
     from stages.training.precision import BF16, resolve_precision
 
     train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
@@ -322,8 +328,11 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
     threads = int(train.get("threads") or 1)
     with _threads(threads):
         torch.manual_seed(0)
+        channels_last = use_channels_last(bool(train["channels_last"]), RelationNet(model_cfg).backbone,
+                                          precision == BF16, device.type != "cpu", "the relation backbone")
         module = RelationModule(model=dict(model_cfg.__dict__), loss=_plain(rel.loss), decode=_plain(rel.decode),
-                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=precision == BF16)
+                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=precision == BF16,
+                                backbone_channels_last=channels_last)
         module = module.to(device).train()
         opt = torch.optim.AdamW(module.parameters(), lr=1e-3)
         graphs = {k: v.to(device) for k, v in collate_graphs(_relation_items(batch, in_cfg.input_size)).items()}
@@ -350,8 +359,8 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
     seconds = members * epochs * epoch_s
     return {"seconds": seconds,
             "note": f"{members} network(s) x {epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + {val_batches} "
-                    f"val batches) ({_precision_name(precision)} backbone, batch {batch}, {threads} threads); at most, "
-                    "early stopping may end it sooner",
+                    f"val batches) ({_precision_name(precision, channels_last)} backbone, batch {batch}, {threads} "
+                    "threads); at most, early stopping may end it sooner",
             "hint": f"~{epoch_s:.0f} s an epoch a network: fewer epochs (relation.train.epochs=N, now {epochs}) or "
                     f"networks (relation.ensemble, now {members}), or a GPU (trainer=gpu)"}
 
@@ -391,6 +400,7 @@ def facing(cfg: DictConfig, context=None) -> dict | None:
     import torch
 
     from stages.facing.model import FacingNet, facing_loss
+    from stages.training.memory_format import use_channels_last
     from stages.training.precision import BF16, resolve_precision
 
     train_images, val_images = split_images(cfg, "train"), split_images(cfg, "val")
@@ -408,9 +418,14 @@ def facing(cfg: DictConfig, context=None) -> dict | None:
     threads = int(fc["train"].get("threads") or 1)
     with _threads(threads):
         torch.manual_seed(0)
-        net = FacingNet(tuple(fc["widths"]), int(fc["hidden"])).to(device).train()
+        net = FacingNet(tuple(fc["widths"]), int(fc["hidden"]))
+        channels_last = use_channels_last(bool(fc["train"]["channels_last"]), net, precision == BF16,
+                                          device.type != "cpu", "the facing network")
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        net = net.to(device).to(memory_format=fmt).train()
         opt = torch.optim.AdamW(net.parameters(), lr=1e-3)
-        crops = torch.randint(0, 256, (batch, 3, size, size), dtype=torch.uint8, device=device)
+        crops = torch.randint(0, 256, (batch, 3, size, size), dtype=torch.uint8,
+                              device=device).contiguous(memory_format=fmt)
         targets = torch.nn.functional.normalize(torch.randn(batch, 2, device=device), dim=1)
 
         def step():
@@ -432,7 +447,8 @@ def facing(cfg: DictConfig, context=None) -> dict | None:
     steps = math.ceil(train_crops / batch)
     epoch_s = steps * step_s + 2 * math.ceil(val_crops / batch) * forward_s
     return {"seconds": epochs * epoch_s,
-            "note": f"{epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + val) ({_precision_name(precision)}, "
-                    f"batch {batch}, {threads} threads); at most: only vehicles with 3D truth train",
+            "note": f"{epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + val) "
+                    f"({_precision_name(precision, channels_last)}, batch {batch}, {threads} threads); at most: only "
+                    "vehicles with 3D truth train",
             "hint": f"~{epoch_s:.0f} s an epoch: fewer epochs (facing.train.epochs=N, now {epochs}), "
                     "facing.train.box_jitter=0 (one copy of each vehicle), or a GPU (trainer=gpu)"}

@@ -61,6 +61,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
 
     # imported here: they load torch, which importing this module must not
     from stages.facing.model import FacingNet, facing_loss
+    from stages.training.memory_format import use_channels_last
     from stages.training.precision import resolve_precision, trains_on_gpu
 
     started = time.perf_counter()
@@ -86,7 +87,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     device = torch.device("cuda" if trains_on_gpu(cfg.trainer.accelerator) else "cpu")
     bf16 = resolve_precision(str(cfg.trainer.precision), cfg.trainer.accelerator).startswith("bf16")
     torch.manual_seed(seed)
-    net = FacingNet(tuple(int(w) for w in fc.widths), int(fc.hidden)).to(device)
+    net = FacingNet(tuple(int(w) for w in fc.widths), int(fc.hidden))
+    channels_last = use_channels_last(bool(tc.channels_last), net, bf16, device.type == "cuda", "the facing network")
+    layout = torch.channels_last if channels_last else torch.contiguous_format
+    net = net.to(device).to(memory_format=layout)
     batch = int(tc.batch_size)
     steps = epochs * ((len(train_x) + batch - 1) // batch)
     opt = torch.optim.AdamW(net.parameters(), lr=float(tc.lr), weight_decay=float(tc.weight_decay))
@@ -101,7 +105,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         for idx in torch.randperm(len(xs), generator=gen).split(batch):
             x, y = augment(xs[idx], ys[idx], gen)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-                loss = facing_loss(net(x.to(device)).float(), y.to(device))
+                loss = facing_loss(net(x.to(device).contiguous(memory_format=layout)).float(), y.to(device))
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -121,14 +125,16 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     scale, nll = logit_scale(agreement(net, val_x, val_y, device))
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         **settings, "trained": True, "val_acc": acc, "logit_scale": scale, "val_nll": nll, "best_epoch": best_epoch,
-        "seed": seed, "bf16": bf16, "train_crops": len(train_x), "val_vehicles": len(val_x), "curves": history},
+        "seed": seed, "bf16": bf16, "channels_last": channels_last, "train_crops": len(train_x),
+        "val_vehicles": len(val_x), "curves": history},
         indent=1))
     plot_curves(history, out_dir / "artifacts" / "facing_curves.png")
     return {"facing.trained": 1.0, "facing.val.acc": acc, "facing.val.vehicles": float(len(val_x)),
             "facing.val.logit_scale": scale, "facing.val.nll": nll,
             "facing.train.crops": float(len(train_x)), "facing.best_epoch": float(best_epoch),
             "facing.epochs": float(epochs), "facing.params": float(sum(p.numel() for p in net.parameters())),
-            "facing.bf16": float(bf16), "facing.train.seconds": time.perf_counter() - started}
+            "facing.bf16": float(bf16), "facing.channels_last": float(channels_last),
+            "facing.train.seconds": time.perf_counter() - started}
 
 
 BRIGHTNESS, CHANNEL_GAIN = 0.3, 0.1

@@ -149,7 +149,7 @@ class RelationModule(L.LightningModule):
     """Training and validation of RelationNet. Hyper-parameters are plain dicts (checkpoint-safe)."""
 
     def __init__(self, model: dict, loss: dict, decode: dict, optim: dict, backbone_bf16: bool = False,
-                 select: str = "wheel_acc"):
+                 select: str = "wheel_acc", backbone_channels_last: bool = False):
         super().__init__()
         if select not in SELECT_MODES:
             raise ValueError(f"relation.train.select must be one of {SELECT_MODES}, got {select!r}")
@@ -160,19 +160,16 @@ class RelationModule(L.LightningModule):
         # bf16 autocast and channels_last for the crop backbone only, which holds nearly all the FLOPs; the
         # graph part and the cosines stay fp32, where bf16's 8-bit mantissa would blur the 0.5 decisions.
         self.backbone_bf16 = backbone_bf16
-        if backbone_bf16:
-            self.model.backbone.to(memory_format=torch.channels_last)
+        self.backbone_format = torch.channels_last if backbone_channels_last else torch.contiguous_format
+        self.model.backbone.to(memory_format=self.backbone_format)
 
     def node_features(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Backbone features of the valid nodes only (padding and masked objects are skipped, which also
         keeps them out of BatchNorm statistics); zeros elsewhere. Same values as ``model.embed``."""
         valid = batch["valid"].bool()
-        x = node_tensor(batch["crops"][valid], batch["coords"][valid])
-        if self.backbone_bf16:
-            with torch.autocast(x.device.type, dtype=torch.bfloat16):
-                feats = self.model.backbone(x.contiguous(memory_format=torch.channels_last)).float()
-        else:
-            feats = self.model.backbone(x)
+        x = node_tensor(batch["crops"][valid], batch["coords"][valid]).contiguous(memory_format=self.backbone_format)
+        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.backbone_bf16):
+            feats = self.model.backbone(x).float()
         h = feats.new_zeros((*valid.shape, feats.shape[-1]))
         h[valid] = feats
         return h

@@ -33,7 +33,8 @@ from stages.training.checkpoints import best_and_latest, weight_averaging
 from stages.training.init_source import INIT_INPUT
 from stages.training.lightning_logs import lightning_progress, route_lightning_logs
 from stages.training.loader_workers import loader_workers
-from stages.training.precision import BF16, FP32, resolve_precision
+from stages.training.memory_format import use_channels_last
+from stages.training.precision import BF16, FP32, resolve_precision, trains_on_gpu
 from stages.training.replicas import check_replicas_agree
 
 WEIGHTS_FILE = "relation.pt"
@@ -174,16 +175,20 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     # imported here: it loads torch, which importing this module must not
     from stages.relation.curves import CurveHistory
     from stages.relation.lightning import RelationDataModule, RelationModule, score_split
+    from stages.relation.model import RelationNet
 
     rel, tr = cfg.relation, cfg.trainer
     plain = plain_config(rel)
     precision = resolve_precision(tr.precision, tr.accelerator)
     backbone_bf16 = precision == BF16  # the module autocasts its backbone itself; the rest trains in fp32
+    channels_last = use_channels_last(bool(rel.train.channels_last), RelationNet(model_cfg).backbone,
+                                      backbone_bf16, trains_on_gpu(tr.accelerator), "the relation backbone")
 
     def new_module():
         return RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
                               optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
-                              backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")))
+                              backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")),
+                              backbone_channels_last=channels_last)
 
     member_dir = out_dir if index is None else out_dir / "members" / str(index)
     done = member_dir / "member.pt"
@@ -220,7 +225,8 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     callbacks = [*weight_averaging(float(rel.train.get("ema_decay", 0.0))), *callbacks]
     logger = _tracking_logger() if index in (None, 0) else None  # one member's curves in the stage's run
     if logger is not None:  # the precision this machine trained in, beside the configured "auto"
-        logger.log_hyperparams({"relation.precision": precision, "relation.loader_workers": workers})
+        logger.log_hyperparams({"relation.precision": precision, "relation.channels_last": channels_last,
+                                "relation.loader_workers": workers})
     trainer = L.Trainer(max_epochs=int(rel.train.epochs), accelerator=tr.accelerator, devices=tr.devices,
                         strategy=tr.strategy, num_nodes=int(tr.num_nodes), precision=FP32 if backbone_bf16 else precision,
                         logger=logger if logger is not None else False, callbacks=callbacks,

@@ -64,7 +64,8 @@ def test_stage_run_on_a_toy_dataset(toy_dataset, tmp_path, monkeypatch, native_b
     from stages.detector.stage import run
     from stages.training import precision
 
-    # trainer.precision auto: bf16 with channels_last where the CPU has native bf16, fp32 NCHW elsewhere
+    # trainer.precision auto: bf16 with channels_last where the CPU has native bf16, fp32 elsewhere (NCHW here: the
+    # toy backbone's 8-channel stem feeds a strided 1x1 shortcut, stages/training/memory_format.py)
     monkeypatch.setattr(precision, "cpu_has_native_bf16", lambda: native_bf16)
     cfg = OmegaConf.create({"detector": detector_cfg(epochs=2, augment={"crop": [64, 64]}), "seed": 3,
                             "trainer": OmegaConf.load(CONF / "trainer" / "cpu.yaml")})

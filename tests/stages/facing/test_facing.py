@@ -24,7 +24,7 @@ from stages.facing.stage import run as run_facing
 
 FACING_CFG = {"input_size": 24, "margin": 0.1, "widths": [4, 8], "hidden": 8,
               "train": {"epochs": 2, "batch_size": 16, "lr": 0.003, "weight_decay": 0.0001, "box_jitter": 0.08,
-                        "threads": 1, "seed": 0, "limit_train_images": None}}
+                        "threads": 1, "channels_last": True, "seed": 0, "limit_train_images": None}}
 TRAINER = {"accelerator": "cpu", "precision": "32-true"}
 
 
