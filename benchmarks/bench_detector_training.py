@@ -1,11 +1,12 @@
-"""Detector training throughput: images/s of one optimisation step (forward, loss, backward, AdamW) in fp32
-against bf16 autocast, channels_last, and both, in the same process on the same batches; the AdamW and
+"""Training throughput: images/s of the detector's optimisation step (forward, loss, backward, AdamW) in fp32
+against channels_last, bf16 autocast, and both, in the same process on the same batches; the AdamW and
 weight-average updates after each step, torch's per-tensor way against the stage's fused and multi-tensor one;
-the training loader's time per item and its share of an epoch beside the fastest step; the relation
-network's step with its backbone in bf16 + channels_last (what ``trainer.precision=auto`` does there)
-against fp32; and how close each step comes to the host's limit: the step's floating-point operations
-(forward and backward, counted by ``torch.utils.flop_counter``) per second of its median time, against the
-rate of a large matrix product timed in the same run in the same precision (the host's practical peak).
+the training loader's time per item and its share of an epoch beside the fastest step; the relation network's
+step with its crop backbone in fp32, fp32 channels_last and bf16 + channels_last, and the facing network's in the
+same layouts and precisions (stages/training/memory_format.py says which the stages take); and how close each step
+comes to the host's limit: the step's floating-point operations (forward and backward, counted by
+``torch.utils.flop_counter``) per second of its median time, against the rate of a large matrix product timed in
+the same run in the same precision (the host's practical peak).
 A step far under the peak wants faster code (kernels, layouts, less overhead between them); one near it wants
 less work (a smaller network, fewer or smaller images).
 
@@ -14,7 +15,7 @@ less work (a smaller network, fewer or smaller images).
 The network is the default config's CenterNet (conf/detector, tiny backbone), freshly initialised; the
 batch is the quick profile's training crop (320x256) with random images and real targets of the configured
 box regression (``detector.regression``).
-Variants are interleaved step by step (fp32, bf16, channels_last, both, fp32, ...) so that the load other
+Variants are interleaved step by step (fp32, fp32 channels_last, bf16, both, fp32, ...) so that the load other
 processes put on a shared machine falls on all of them alike; the medians' ratios against fp32 are the
 figures to trust, the absolute rates depend on the load. bf16 is only timed where the CPU runs it natively
 (``stages.training.precision.cpu_has_native_bf16``): elsewhere emulated bf16 is slower and the stages train in fp32.
@@ -31,7 +32,7 @@ import time
 
 import numpy as np
 
-from benchmarks.bench_latency import default_configs
+from benchmarks.bench_latency import CONF, default_configs
 
 
 def make_batch(det: dict, batch: int, width: int, height: int, seed: int = 0) -> dict:
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
     width, height = 320, 256
     batch = make_batch(det, args.batch, width, height)
     native_bf16 = cpu_has_native_bf16()
-    variants = {"fp32": (False, False), "channels_last": (False, True)}
+    variants = {"fp32": (False, False), "fp32 channels_last": (False, True)}
     if native_bf16:
         variants |= {"bf16": (True, False), "bf16 + channels_last": (True, True)}
 
@@ -117,19 +118,15 @@ def main(argv: list[str] | None = None) -> None:
 
     print(f"CPU native bf16: {native_bf16}; threads {args.threads}; batch {args.batch} at {width}x{height}; "
           f"median of {args.steps} interleaved steps")
-    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
-    fp32 = statistics.median(times["fp32"])
-    for name, ts in times.items():
-        median = statistics.median(ts)
-        print(f"{name:<22} {1000 * median:8.0f} {args.batch / median:9.1f} {fp32 / median:7.2f}x")
+    print_ratios(times, args.batch, "images/s")
     utilisation("detector", step_flops, {name: statistics.median(ts) for name, ts in times.items()}, peaks)
     fastest = min(statistics.median(ts) for ts in times.values()) / args.batch
     update_costs(det, fastest * args.batch, max(20, 4 * args.steps))
     loader_share(det, fastest, args.steps)
+    relation_step_ratio(args.steps, peaks, native_bf16)
+    facing_step_ratio(args.steps, peaks, native_bf16)
     if not native_bf16:
-        print("bf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
-        return
-    relation_step_ratio(args.steps, peaks)
+        print("\nbf16 not timed: this CPU has no native bf16 (avx512_bf16 / amx_bf16); the stages train in fp32")
 
 
 def matmul_peaks(native_bf16: bool, size: int = 2048, rounds: int = 5) -> dict[str, float]:
@@ -220,7 +217,8 @@ def update_costs(det: dict, step_seconds: float, rounds: int) -> None:
 
 def synthetic_scene(width: int, height: int, rng: np.random.Generator, objects: int = 12):
     """A letterboxed-like training image (smooth background, filled boxes: noise would make the JPEG effect
-    unrealistically slow) and its record in input pixels, as ``CenterNetDataset.letterboxed`` caches them."""
+    unrealistically slow), its record in input pixels and its boxes' facing vectors (none known), as
+    ``CenterNetDataset.letterboxed`` caches them."""
     import cv2
 
     from deepword.word_format import Record
@@ -232,8 +230,9 @@ def synthetic_scene(width: int, height: int, rng: np.random.Generator, objects: 
     for box in xyxy.astype(int):
         cv2.rectangle(image, tuple(box[:2]), tuple(box[2:]), tuple(int(c) for c in rng.integers(0, 255, 3)), -1)
     boxes = np.column_stack([xyxy, np.ones(objects), rng.integers(0, 2, objects), np.arange(objects)])
-    return image, Record(image="synthetic.png", frame_id=0, camera="front", width=width, height=height, boxes=boxes,
-                         relations=[], wheel_pairs=[])
+    record = Record(image="synthetic.png", frame_id=0, camera="front", width=width, height=height, boxes=boxes,
+                    relations=[], wheel_pairs=[])
+    return image, record, np.full((objects, 2), np.nan, dtype=np.float32)  # no 3D truth: no facing vectors
 
 
 def loader_share(det: dict, step_seconds_per_image: float, rounds: int, items: int = 40) -> None:
@@ -255,7 +254,7 @@ def loader_share(det: dict, step_seconds_per_image: float, rounds: int, items: i
         augment = {**det["augment"], "crop": crop}
         dataset = CenterNetDataset(".", [], width, height, 12, augment=augment, regression=det["regression"])
         scenes = [synthetic_scene(width, height, rng) for _ in range(items)]
-        dataset.records = [record for _, record in scenes]
+        dataset.records = [record for _, record, _ in scenes]
         dataset._cache = dict(enumerate(scenes))
         torch.manual_seed(0)
         times = []
@@ -271,9 +270,10 @@ def loader_share(det: dict, step_seconds_per_image: float, rounds: int, items: i
         print(f"{name:<30} {1000 * loader:8.1f} {100 * share:28.0f}%")
 
 
-def relation_step_ratio(steps: int, peaks: dict[str, float], images: int = 16) -> None:
-    """The relation stage's training step (default config, 16 images of the quick profile's object counts)
-    with the backbone in fp32 and in bf16, interleaved; prints graphs/s, the ratio and the share of the peak."""
+def relation_step_ratio(steps: int, peaks: dict[str, float], native_bf16: bool, images: int = 16) -> None:
+    """The relation stage's training step (default config, 16 images of the quick profile's object counts) with the
+    crop backbone in fp32 NCHW, fp32 channels_last and (where the CPU has it natively) bf16 channels_last,
+    interleaved; prints graphs/s, the ratios and the share of the peak."""
     import torch
     from omegaconf import OmegaConf
 
@@ -295,11 +295,15 @@ def relation_step_ratio(steps: int, peaks: dict[str, float], images: int = 16) -
                       "owner": torch.zeros((n, n), dtype=torch.uint8), "couple": torch.zeros((n, n), dtype=torch.uint8),
                       "role": torch.full((n,), -1, dtype=torch.long)})
     batch = collate_graphs(items)
+    variants = {"fp32": (False, False), "fp32 channels_last": (False, True)}
+    if native_bf16:
+        variants["bf16 + channels_last"] = (True, True)
     modules = {}
-    for name, bf16 in (("fp32", False), ("bf16 backbone", True)):
+    for name, (bf16, channels_last) in variants.items():
         torch.manual_seed(0)
         module = RelationModule(model=dict(model_cfg.__dict__), loss=rel["loss"], decode=rel["decode"],
-                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=bf16).train()
+                                optim={"lr": 1e-3, "weight_decay": 0.0}, backbone_bf16=bf16,
+                                backbone_channels_last=channels_last).train()
         modules[name] = (module, torch.optim.AdamW(module.parameters(), lr=1e-3))
 
     def step(name: str) -> float:
@@ -312,17 +316,63 @@ def relation_step_ratio(steps: int, peaks: dict[str, float], images: int = 16) -
         return time.perf_counter() - start
 
     times = interleaved_times(step, list(modules), steps)
-    fp32 = statistics.median(times["fp32"])
-    print(f"\nrelation network ({model_cfg.backbone}, {in_cfg.input_size}x{in_cfg.input_size} crops), "
-          f"{images} images of {sum(len(g.classes) for g in graphs)} objects per step")
-    print(f"{'variant':<22} {'ms/step':>8} {'images/s':>9} {'vs fp32':>8}")
-    for name, ts in times.items():
-        median = statistics.median(ts)
-        print(f"{name:<22} {1000 * median:8.0f} {images / median:9.1f} {fp32 / median:7.2f}x")
+    print(f"\nrelation network ({model_cfg.backbone['_target_'].rsplit('.', 1)[-1]}, {in_cfg.input_size}x"
+          f"{in_cfg.input_size} crops), {images} images of {sum(len(g.classes) for g in graphs)} objects per step; "
+          "the backbone's layout and precision")
+    print_ratios(times, images, "images/s")
     module = modules["fp32"][0]
     flops = training_flops(lambda: module._loss(module(batch), batch)["loss"])
-    utilisation("relation", flops, {("bf16 backbone" if "bf16" in n else n): statistics.median(ts)
-                                    for n, ts in times.items()}, peaks)
+    utilisation("relation", flops, {n: statistics.median(ts) for n, ts in times.items()}, peaks)
+
+
+def facing_step_ratio(steps: int, peaks: dict[str, float], native_bf16: bool) -> None:
+    """The facing network's training step (default config: a batch of 64 crops) in fp32 NCHW, fp32 channels_last and,
+    where the CPU has it natively, bf16 in both layouts, interleaved; ratios and the share of the peak."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from stages.facing.model import FacingNet, facing_loss
+
+    fc = OmegaConf.load(CONF / "facing" / "default.yaml")
+    batch, size = int(fc.train.batch_size), int(fc.input_size)
+    variants = {"fp32": (False, False), "fp32 channels_last": (False, True)}
+    if native_bf16:
+        variants |= {"bf16": (True, False), "bf16 + channels_last": (True, True)}
+    generator = torch.Generator().manual_seed(0)
+    crops = torch.randint(0, 256, (batch, 3, size, size), dtype=torch.uint8, generator=generator)
+    targets = torch.nn.functional.normalize(torch.randn(batch, 2, generator=generator), dim=1)
+    state = {}
+    for name, (_, channels_last) in variants.items():
+        torch.manual_seed(0)
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        net = FacingNet(tuple(fc.widths), int(fc.hidden)).to(memory_format=fmt).train()
+        state[name] = (net, torch.optim.AdamW(net.parameters(), lr=1e-3), crops.contiguous(memory_format=fmt))
+
+    def step(name: str) -> float:
+        net, opt, x = state[name]
+        start = time.perf_counter()
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=variants[name][0]):
+            loss = facing_loss(net(x).float(), targets)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        return time.perf_counter() - start
+
+    times = interleaved_times(step, list(variants), steps)
+    print(f"\nfacing network ({size}x{size} crops, widths {list(fc.widths)}), batch {batch}")
+    print_ratios(times, batch, "crops/s")
+    net, _, x = state["fp32"]
+    flops = training_flops(lambda: facing_loss(net(x), targets))
+    utilisation("facing", flops, {n: statistics.median(ts) for n, ts in times.items()}, peaks)
+
+
+def print_ratios(times: dict[str, list[float]], items: int, unit: str) -> None:
+    """Each variant's median step, its rate and its ratio against the first (the fp32 NCHW reference)."""
+    reference = statistics.median(next(iter(times.values())))
+    print(f"{'variant':<22} {'ms/step':>8} {unit:>9} {'vs fp32':>8}")
+    for name, ts in times.items():
+        median = statistics.median(ts)
+        print(f"{name:<22} {1000 * median:8.0f} {items / median:9.1f} {reference / median:7.2f}x")
 
 
 if __name__ == "__main__":
