@@ -278,8 +278,10 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
         scale = math.sin(tm) / np.maximum(chi[beyond], 1e-12)
         pc[beyond] = np.stack([pc[beyond, 0] * scale, pc[beyond, 1] * scale,
                                np.full(int(beyond.sum()), math.cos(tm))], axis=1)
-    uv = cam.project_cam(pc).reshape(len(xy), -1, 2) - BOX_TO_IMAGE
-    boxes = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+    # (2, N, P): u and v each with a vehicle's points contiguous, so that the bbox is four row reductions (a fit asks
+    # for thousands of silhouettes; reducing (N, P, 2) over its middle axis took a fifth of the bev stage)
+    uv = np.ascontiguousarray(cam.project_cam(pc).T).reshape(2, len(xy), -1) - BOX_TO_IMAGE
+    boxes = np.concatenate([uv.min(axis=2).T, uv.max(axis=2).T], axis=1)
     return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
 
 

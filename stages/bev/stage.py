@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import random
 import shutil
 from collections import defaultdict
@@ -41,11 +42,9 @@ import numpy as np
 from deepword.footprint import (
     FootprintPrior,
     fit_prior,
-    frame_footprints,
     group_confidence,
     group_directed,
     group_wheels,
-    shared_fits,
     wheel_contacts,
     write_footprints,
 )
@@ -54,6 +53,7 @@ from deepword.inference.facing_net import OnnxFacing
 from deepword.top_view import panel_grid, top_view
 from deepword.word_format import WHEEL, Dataset, Record, load_image, open_dataset, read_records
 from pipeline.outputs import StageInputs
+from stages.bev.fitting import frame_views, fused_footprints
 from stages.bev.metrics import (
     DETECTION_METRICS,
     METRICS,
@@ -151,19 +151,6 @@ def scored(fused_frame: list) -> list[Scored]:
     return [Scored(box, group_confidence(g), group_wheels(g)) for box, g in fused_frame]
 
 
-def estimate_source(preds: dict[str, Record], test: list[Record], cameras: dict, prior: FootprintPrior,
-                    use_relations: bool, fuse_radius: float) -> dict[int, list]:
-    """Fused footprints per frame for one method on one box source (``frame_footprints``: what ``deepword infer``
-    gives the same frame)."""
-    views = defaultdict(list)
-    for rec in test:
-        pred = preds.get(rec.image)
-        if pred is not None:
-            views[rec.frame_id].append((pred, cameras[rec.image]))
-    return {f: frame_footprints(views.get(f, []), prior, fuse_radius, use_relations)[1]
-            for f in {r.frame_id for r in test}}
-
-
 def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     bcfg, seed = cfg.bev, int(cfg.seed)
     out_dir = Path(out_dir)
@@ -246,7 +233,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
-    results, detection, notes, fused_by, facing = {}, {}, [], {}, {}
+    results, detection, notes, facing = {}, {}, [], {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
     reads = {}   # {boxes: {method: {image: record}}}
     for boxes in bcfg.box_sources:
@@ -261,24 +248,26 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                             for m in methods}
     if facing_net is not None:   # the facing network's vectors replace any a detector wrote
         reads = with_facing_vectors(reads, facing_net, ds.root)
-    with shared_fits():   # the methods share their boxes: a vehicle fitted alike by two methods is fitted once
-        for boxes, read in reads.items():
-            methods = list(read)
-            results[boxes] = {}
-            agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
-            if agreement is not None:
-                facing[boxes] = agreement
-            for method in [BASELINE, *methods]:
-                preds = read[methods[0] if method == BASELINE else method]  # box_bottom reads the same boxes
-                fused = estimate_source(preds, test, cameras, prior, method != BASELINE, float(bcfg.fuse_radius_m))
-                fused_by[(boxes, method)] = fused
-                matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
-                results[boxes][method] = {
-                    pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
-                frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
-                detection.setdefault(boxes, {})[method] = {
-                    name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
-                write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
+    jobs = {(boxes, method): (frame_views(read[methods[0] if method == BASELINE else method], test, cameras),
+                              method != BASELINE)   # box_bottom reads the same boxes, without relations
+            for boxes, read in reads.items() for methods in [list(read)] for method in [BASELINE, *methods]}
+    fused_by = fused_footprints(jobs, list({r.frame_id for r in test}), prior, float(bcfg.fuse_radius_m),
+                                int(bcfg.workers or os.cpu_count() or 1))
+    for boxes, read in reads.items():
+        methods = list(read)
+        results[boxes] = {}
+        agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
+        if agreement is not None:
+            facing[boxes] = agreement
+        for method in [BASELINE, *methods]:
+            fused = fused_by[(boxes, method)]
+            matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
+            results[boxes][method] = {
+                pop: summarise([m for ms in matches.values() for m in ms if keep(m.truth)]) for pop, keep in pops.items()}
+            frames = [(truth.get(f, []), scored(fused[f])) for f in sorted(fused)]
+            detection.setdefault(boxes, {})[method] = {
+                name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
+            write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
     return Domain(test, truth, cameras, results, detection, fused_by, notes, facing)
 
 

@@ -1,0 +1,60 @@
+"""The bev stage's footprints: every (box source, method)'s fused footprints on the test frames
+(``deepword.footprint.frame_footprints``, what ``deepword infer`` gives the same frame), the frames shared among
+worker processes.
+
+Fitting is the stage's cost (a one-wheel or no-wheel vehicle's silhouette search: thousands of projected vehicles
+per fit) and plain NumPy on one core, so ``bev.workers`` processes each take every ``workers``-th frame and fit it
+for every (box source, method) within one ``shared_fits`` (the methods of a box source share their boxes, and most
+vehicles are fitted alike by several). A frame's footprints depend on that frame alone, so the numbers are the same
+for any number of workers."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections import defaultdict
+
+from deepword.footprint import FootprintPrior, frame_footprints, shared_fits
+from deepword.word_format import Record
+
+# (box source, method) -> ({frame: [(record, camera), ...]}, use_relations)
+Jobs = dict[tuple[str, str], tuple[dict[int, list], bool]]
+
+
+def frame_views(preds: dict[str, Record], test: list[Record], cameras: dict) -> dict[int, list]:
+    """{frame: [(predicted record, camera), ...]} of the test images a method predicted, in test order."""
+    views = defaultdict(list)
+    for rec in test:
+        pred = preds.get(rec.image)
+        if pred is not None:
+            views[rec.frame_id].append((pred, cameras[rec.image]))
+    return dict(views)
+
+
+def _fit_frames(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float) -> dict:
+    """{job: {frame: fused footprints}} for ``frames``, every job's fits shared (``shared_fits``)."""
+    with shared_fits():
+        return {key: {f: frame_footprints(views.get(f, []), prior, radius_m, use_relations)[1] for f in frames}
+                for key, (views, use_relations) in jobs.items()}
+
+
+def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float,
+                     workers: int = 1) -> dict[tuple[str, str], dict[int, list]]:
+    """{job: {frame: [(footprint, its estimates), ...]}} for every job and every frame of ``frames`` (a frame none
+    of a job's views fall in gets none), keyed in the order of ``frames``; ``workers`` > 1: that many spawned
+    processes, each every ``workers``-th frame."""
+    started = time.perf_counter()
+    order = sorted(frames)
+    workers = max(1, min(int(workers), len(order)))
+    shards = [order[i::workers] for i in range(workers)]
+    if workers == 1:
+        parts = [_fit_frames(jobs, order, prior, radius_m)]
+    else:
+        args = [({key: ({f: views[f] for f in shard if f in views}, use) for key, (views, use) in jobs.items()},
+                 shard, prior, radius_m) for shard in shards]
+        with mp.get_context("spawn").Pool(workers) as pool:   # spawn: safe whatever threads the parent runs
+            parts = pool.starmap(_fit_frames, args)
+    out = {key: {f: part[key][f] for part in parts for f in part[key]} for key in jobs}
+    print(f"bev: footprints of {len(order)} frames x {len(jobs)} (boxes, method) in "
+          f"{time.perf_counter() - started:.0f} s ({workers} process{'es' if workers > 1 else ''})", flush=True)
+    return {key: {f: fused[f] for f in frames} for key, fused in out.items()}
