@@ -300,11 +300,13 @@ def _detector_targets(det: dict, batch: int, width: int, height: int, device) ->
 
 
 def relation(cfg: DictConfig, context=None) -> dict | None:
-    """Seconds of the relation stage's training: ensemble members x epochs x train steps x the probed step, plus a
-    validation pass an epoch. Early stopping (``relation.train.patience``) may end it sooner: an upper bound."""
+    """Seconds of the relation stage's training: ensemble members x epochs x train steps x (the probed step and the
+    augmentation of its crops), plus a validation pass an epoch; with early stopping (``relation.train.patience``)
+    2 x patience epochs a network (the configured epochs at most), what the quick data's networks ran."""
     import torch
 
     from deepword.relation_graph import InputConfig
+    from stages.relation.augment import AugmentConfig, augment_crops
     from stages.relation.lightning import RelationModule, collate_graphs
     from stages.relation.model import ModelConfig, RelationNet
     from stages.training.memory_format import use_channels_last
@@ -335,7 +337,8 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
                                 backbone_channels_last=channels_last)
         module = module.to(device).train()
         opt = torch.optim.AdamW(module.parameters(), lr=1e-3)
-        graphs = {k: v.to(device) for k, v in collate_graphs(_relation_items(batch, in_cfg.input_size)).items()}
+        items = _relation_items(batch, in_cfg.input_size)
+        graphs = {k: v.to(device) for k, v in collate_graphs(items).items()}
 
         def step():
             loss = module._loss(module(graphs), graphs)["loss"]
@@ -351,16 +354,27 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
                 module(graphs)
 
         forward_s = timed_steps(forward, sync)
+        # the crops' appearance augmentation runs per image in the training process, beside the step (a third of
+        # an fp32 epoch on a 2-core host): timed on the probe's batch, as GraphDataset applies it
+        augment = AugmentConfig.from_cfg(_plain(rel.get("augment")))
+        augment_s = timed_steps(lambda: [augment_crops(item["crops"], augment) for item in items]) \
+            if augment.active else 0.0
     members, epochs = int(rel.get("ensemble", 1)), int(train["epochs"])
+    # early stopping ends a network `patience` epochs after its best, which came at epoch 4-7 on the quick data (each
+    # of three networks ran 12-15 of at most 30 epochs): count 2 x patience, the configured epochs at most
+    expected = min(epochs, 2 * int(train["patience"])) if train.get("patience") else epochs
     replicas = _replicas(tr)
     steps = math.ceil(math.ceil(train_images / replicas) / batch)
     val_batches = math.ceil(val_images / batch)
-    epoch_s = steps * step_s + val_batches * forward_s
-    seconds = members * epochs * epoch_s
+    epoch_s = steps * (step_s + augment_s) + val_batches * forward_s
+    seconds = members * expected * epoch_s
+    augmenting = f" + {1000 * augment_s:.0f} ms augmentation" if augment_s else ""
     return {"seconds": seconds,
-            "note": f"{members} network(s) x {epochs} epochs x ({steps} steps x {1000 * step_s:.0f} ms + {val_batches} "
+            "note": f"{members} network(s) x {expected if expected == epochs else f'~{expected} of {epochs}'} epochs x ({steps} steps x ({1000 * step_s:.0f} ms{augmenting}) + "
+                    f"{val_batches} "
                     f"val batches) ({_precision_name(precision, channels_last)} backbone, batch {batch}, {threads} "
-                    "threads); at most, early stopping may end it sooner",
+                    "threads); early stopping (patience "
+                    f"{train.get('patience')}) decides the epochs",
             "hint": f"~{epoch_s:.0f} s an epoch a network: fewer epochs (relation.train.epochs=N, now {epochs}) or "
                     f"networks (relation.ensemble, now {members}), or a GPU (trainer=gpu)"}
 

@@ -35,7 +35,19 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     rel = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
                "relation.train.limit_val_images=null", "relation.train.batch_size=8")
     steps = math.ceil(train * 2 / 8)  # each train image twice: once as annotated, once as a detector might see it
-    assert estimate.relation(rel)["seconds"] == pytest.approx(3 * 2 * (steps + math.ceil(val / 8)) * 0.5)
+    # a train step: the probed step (0.5 s) + the crops' augmentation of its batch (0.5 s: timed a batch at a time)
+    assert estimate.relation(rel)["seconds"] == pytest.approx(3 * 2 * (2 * steps + math.ceil(val / 8)) * 0.5)
+    assert "augmentation" in estimate.relation(rel)["note"]
+    plain = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
+                 "relation.train.limit_val_images=null", "relation.train.batch_size=8", "relation.augment.prob=0")
+    assert estimate.relation(plain)["seconds"] == pytest.approx(3 * 2 * (steps + math.ceil(val / 8)) * 0.5)
+    assert "augmentation" not in estimate.relation(plain)["note"]
+    # early stopping: 2 x patience epochs a network, the configured epochs at most
+    stopping = _cfg("relation.ensemble=1", "relation.train.epochs=30", "relation.train.patience=3",
+                    "relation.train.limit_train_images=null", "relation.train.limit_val_images=null",
+                    "relation.train.batch_size=8", "relation.augment.prob=0")
+    assert estimate.relation(stopping)["seconds"] == pytest.approx(6 * (steps + math.ceil(val / 8)) * 0.5)
+    assert "~6 of 30 epochs" in estimate.relation(stopping)["note"]
     fac = _cfg("facing.train.epochs=3", "facing.train.batch_size=16")
     crops, val_crops = train * estimate.MEAN_OBJECTS * estimate.VEHICLE_SHARE, val * estimate.MEAN_OBJECTS / 3
     # every train vehicle twice (as labelled and jittered); val flip-averaged: two forward passes a batch
