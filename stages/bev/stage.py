@@ -248,9 +248,12 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                             for m in methods}
     if facing_net is not None:   # the facing network's vectors replace any a detector wrote
         reads = with_facing_vectors(reads, facing_net, ds.root)
-    jobs = {(boxes, method): (frame_views(read[methods[0] if method == BASELINE else method], test, cameras),
-                              method != BASELINE)   # box_bottom reads the same boxes, without relations
-            for boxes, read in reads.items() for methods in [list(read)] for method in [BASELINE, *methods]}
+    jobs = {}   # {(boxes, method): (views by frame, use_relations)}
+    for boxes, read in reads.items():
+        first = next(iter(read))   # box_bottom reads the methods' shared boxes, without relations
+        for method in [BASELINE, *read]:
+            jobs[(boxes, method)] = (frame_views(read[first if method == BASELINE else method], test, cameras),
+                                     method != BASELINE)
     fused_by = fused_footprints(jobs, list({r.frame_id for r in test}), prior, float(bcfg.fuse_radius_m),
                                 int(bcfg.workers or os.cpu_count() or 1))
     for boxes, read in reads.items():

@@ -105,7 +105,7 @@ def run(cfg: DictConfig, inputs: dict[str, Path], out_dir: Path) -> dict[str, fl
     splits = {name: dataset.subset(name) for name in ("train", "val", "test")}
     mcfg = model_config(det)
     precision = resolve_precision(trainer_cfg.get("precision", "32-true"), trainer_cfg.get("accelerator", "auto"))
-    channels_last = use_channels_last(bool(det["channels_last"]), build_centernet(mcfg), precision == BF16,
+    channels_last = use_channels_last(bool(det["channels_last"]), lambda: build_centernet(mcfg), precision == BF16,
                                       trains_on_gpu(trainer_cfg.get("accelerator", "auto")), "the detector")
     module = CenterNetModule(mcfg, det["loss"], det["optimizer"], det["score_threshold"], det["ap_min_box_px"],
                              channels_last)

@@ -181,7 +181,7 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     plain = plain_config(rel)
     precision = resolve_precision(tr.precision, tr.accelerator)
     backbone_bf16 = precision == BF16  # the module autocasts its backbone itself; the rest trains in fp32
-    channels_last = use_channels_last(bool(rel.train.channels_last), RelationNet(model_cfg).backbone,
+    channels_last = use_channels_last(bool(rel.train.channels_last), lambda: RelationNet(model_cfg).backbone,
                                       backbone_bf16, trains_on_gpu(tr.accelerator), "the relation backbone")
 
     def new_module():

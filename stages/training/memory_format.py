@@ -37,11 +37,19 @@ def nhwc_unsafe_convolutions(net) -> list[str]:
 def use_channels_last(requested: bool, net, bf16: bool, on_gpu: bool, what: str) -> bool:
     """Whether ``net`` (``what`` names it in the log) trains in channels_last: when ``requested``, in bf16 anywhere and
     in fp32 on a CPU unless it holds a convolution whose NHWC backward crashes there. fp32 on a GPU stays NCHW (not
-    measured there)."""
+    measured there). ``net`` may be a function building the network: it is called only when the answer needs it, with
+    torch's random state restored afterwards, so that a stage that seeded before asking builds its own network from the
+    same draw as without the question."""
+    import torch
+    from torch import nn
+
     if not requested or (on_gpu and not bf16):
         return False
     if bf16:
         return True
+    if not isinstance(net, nn.Module):
+        with torch.random.fork_rng(devices=[]):
+            net = net()
     unsafe = nhwc_unsafe_convolutions(net)
     if unsafe:
         log.info("%s trains in NCHW, not channels_last: oneDNN's fp32 NHWC backward crashes on the strided 1x1 "

@@ -57,3 +57,18 @@ def test_a_channels_last_step_computes_what_nchw_does():
     nhwc(x.contiguous(memory_format=torch.channels_last)).square().mean().backward()
     for a, b in zip(nchw.parameters(), nhwc.parameters(), strict=True):
         torch.testing.assert_close(a.grad, b.grad, rtol=1e-4, atol=1e-6)
+
+
+def test_a_network_built_to_answer_leaves_the_seeded_draw_alone():
+    torch.manual_seed(7)
+    want = nn.Linear(4, 4).weight.detach().clone()   # what a stage seeded with 7 builds first
+    for bf16 in (False, True):
+        built = []
+        torch.manual_seed(7)
+        assert use_channels_last(True, lambda built=built: built.append(1) or shortcut_net(16), bf16=bf16,
+                                 on_gpu=False, what="n")
+        assert built == ([] if bf16 else [1])         # built only when the answer needs it
+        assert torch.equal(nn.Linear(4, 4).weight, want)
+    torch.manual_seed(7)
+    assert not use_channels_last(True, lambda: shortcut_net(8), bf16=False, on_gpu=False, what="n")
+    assert torch.equal(nn.Linear(4, 4).weight, want)
