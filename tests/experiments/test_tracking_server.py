@@ -1,14 +1,18 @@
 """`tracking=server` for real: a `mlflow server` on 127.0.0.1 (artifact store in tmp, proxied by the server)
 on the team setup's PostgreSQL (a throwaway cluster started by the test; a sqlite backend where PostgreSQL is not
-installed), the smoke pipeline (data + priors) run against it in a subprocess, and the runs read back over HTTP."""
+installed), the smoke pipeline (data + priors) run against it in a subprocess, and the runs read back over HTTP.
+The server's first port is taken by another listener, so it also shows that a test server which loses its port
+starts again on another (``MlflowServer.wait_ready``)."""
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 
 import pytest
 
+from tests.experiments import pipeline_runs
 from tests.experiments.pipeline_runs import REPO, MlflowServer, run_pipeline
 from tests.experiments.postgres_cluster import PostgresCluster, find_bin_dir
 from tests.ports import refused_port
@@ -17,28 +21,38 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture()
-def server(tmp_path):
+def server(tmp_path, monkeypatch):
     """A tracking server on the team setup's PostgreSQL where its binaries are installed (CI's ``.ci/run`` installs
     them), on sqlite elsewhere. One backend is enough: the pipeline speaks only HTTP to the server, so what differs
-    between backends is MLflow's server, not this project's code; a second server and pipeline run cost CI ~40 s."""
+    between backends is MLflow's server, not this project's code; a second server and pipeline run cost CI ~40 s.
+    The first port the server is given is held by a listener of the test's own (as another test's server would hold
+    it under two test processes): ``srv.lost_port`` is that port, and the server must be answering on another."""
     bin_dir = find_bin_dir()
     database = PostgresCluster(bin_dir) if bin_dir is not None else None
-    try:
-        if database is not None:
-            database.start()
-        srv = MlflowServer(tmp_path, backend_uri=database.uri if database else None)
-        srv.database = database
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        ports = iter([taken.getsockname()[1]])
+        real_free_port = pipeline_runs.free_port
+        monkeypatch.setattr(pipeline_runs, "free_port", lambda: next(ports, None) or real_free_port())
         try:
-            srv.wait_ready()
-            yield srv
+            if database is not None:
+                database.start()
+            srv = MlflowServer(tmp_path, backend_uri=database.uri if database else None)
+            srv.database, srv.lost_port = database, taken.getsockname()[1]
+            try:
+                srv.wait_ready()
+                yield srv
+            finally:
+                srv.stop()
         finally:
-            srv.stop()
-    finally:
-        if database is not None:
-            database.stop()
+            if database is not None:
+                database.stop()
 
 
 def test_pipeline_logs_parent_children_metrics_and_artifacts_to_a_tracking_server(server, tmp_path):
+    assert server.port != server.lost_port and server.uri.endswith(f":{server.port}")
     # Half the smoke data (16 images, as the sweep test): what is checked is the logging, not the priors.
     proc = run_pipeline(tmp_path / "job", ["profile=smoke", "data.frames=4", "pipeline.until=priors",
                                            "tracking=server"], server.uri)
