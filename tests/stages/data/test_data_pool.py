@@ -19,7 +19,7 @@ def pool_cfg(images: int, draw: int = 0, frames: int = 40) -> dict:
     """data=adapt's pool source on the held-out families at smoke size (what the profile makes of shift.data)."""
     shift = OmegaConf.load(CONF.parent / "shift" / "heldout.yaml")["data"]
     generator = OmegaConf.to_container(OmegaConf.merge(OmegaConf.create(synword_cfg(frames=4)), shift), resolve=True)
-    generator.update(image_size=[320, 240], workers=1)
+    generator.update(image_size=[160, 120], workers=1)   # a quarter of the smoke size: what is checked is which images
     src = OmegaConf.to_container(OmegaConf.load(CONF / "adapt.yaml")["sources"]["pool"], resolve=False)
     src.update(generator=generator, images=images, draw=draw, frames=frames)
     return src
