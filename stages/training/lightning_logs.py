@@ -6,6 +6,8 @@ line ("GPU available", "`Trainer.fit` stopped") came out twice, once without the
 ``lightning.pytorch`` / ``lightning.fabric`` loggers, when imported before the root had handlers, print
 through handlers of their own and do not propagate: their lines never reached the job's log file.)
 
+Lightning's advertisement for its cloud logger (a "Tip" line at every ``Trainer``) is dropped: MLflow tracks the runs.
+
 And Lightning's progress bar where it suits: on a terminal its own bar, elsewhere one line per epoch
 (``lightning_progress``)."""
 
@@ -20,11 +22,26 @@ from lightning.pytorch.callbacks import ProgressBar
 from deepword.progress import on_terminal
 
 
+class _NoAdvertisement(logging.Filter):
+    """Drops Lightning's "Tip" lines, which advertise a cloud service rather than say anything about the run."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(ADVERTISEMENT)
+
+
+ADVERTISEMENT = "\N{ELECTRIC LIGHT BULB} Tip:"
+_NO_ADVERTISEMENT = _NoAdvertisement()
+
+
 def route_lightning_logs() -> None:
     """When the root logger has handlers, drop the ``lightning`` logger's own, so its lines reach the
-    console once, through the root's handlers. Without root handlers (a bare script) Lightning keeps its own."""
+    console once, through the root's handlers. Without root handlers (a bare script) Lightning keeps its own.
+    Either way its "Tip" advertisement is filtered out."""
     import lightning  # noqa: F401  (importing it is what adds the handler)
 
+    rank_zero = logging.getLogger("lightning.pytorch.utilities.rank_zero")  # where rank_zero_info logs
+    if _NO_ADVERTISEMENT not in rank_zero.filters:
+        rank_zero.addFilter(_NO_ADVERTISEMENT)
     if not logging.getLogger().handlers:
         return
     for name in ("lightning", "lightning.pytorch", "lightning.fabric"):

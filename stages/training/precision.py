@@ -79,13 +79,15 @@ _warned = False
 
 
 def warn_fp32_fallback() -> None:
-    """Once a process (the relation stage resolves the precision for each ensemble member): the profiles' epoch
-    budgets were measured with bf16, so say so before a stage trains several times longer."""
+    """Once a process (the relation stage resolves the precision for each ensemble member): the profiles' fixed
+    epoch counts were chosen with bf16, so say what fp32 costs before the stages train (docs/results.md, "How long
+    `make pipeline` takes")."""
     global _warned
     if _warned:
         return
     _warned = True
-    log.warning("trainer.precision=auto: this CPU has no native bf16 (%s), so training runs in fp32, whose "
-                "steps are 2-5x slower than the profiles' epoch budgets assume (a quick-profile detector epoch took "
-                "65-75 s on such a 2-core host against 13-15 s); the epoch lines give the time left, and a lower "
-                "detector.epochs shortens the run", " / ".join(BF16_CPU_FLAGS))
+    log.warning("trainer.precision=auto: this CPU has no native bf16 (%s), so training runs in fp32, about twice "
+                "as slow a step (a quick-profile detector epoch took 27-36 s on a 2-core AVX-512 host against 15-17 s "
+                "with bf16); with detector.epochs=auto the plan fits fewer detector epochs into the profile's minutes, "
+                "a weaker detector than a bf16 host's, and detector.epochs=N sets them; the epoch lines give the time "
+                "left", " / ".join(BF16_CPU_FLAGS))

@@ -50,3 +50,18 @@ def test_importing_lightning_still_adds_its_own_handler():
     code = "import logging, lightning; print(len(logging.getLogger('lightning').handlers))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert int(out.strip().splitlines()[-1]) >= 1
+
+
+def test_lightnings_cloud_logger_tip_is_dropped_and_its_other_lines_kept():
+    from lightning.pytorch.utilities.rank_zero import rank_zero_info
+
+    route_lightning_logs()
+    rank_zero, collect = logging.getLogger("lightning.pytorch.utilities.rank_zero"), _Collect()
+    rank_zero.addHandler(collect)
+    try:
+        rank_zero_info("\N{ELECTRIC LIGHT BULB} Tip: For seamless cloud logging and experiment tracking, try installing "
+                       "[litlogger](https://pypi.org/project/litlogger/) to enable LitLogger")
+        rank_zero_info("GPU available: False, used: False")
+        assert collect.lines == ["GPU available: False, used: False"]
+    finally:
+        rank_zero.removeHandler(collect)
