@@ -20,7 +20,11 @@ from pipeline.tracker import flatten_params
 from stages.tables.rows import CONF, NOT_DEFINING
 
 DEFINING = ("relation.", "detector.", "data.")
-NOT_DEFINING_HERE = NOT_DEFINING | {"detector.num_workers", "relation.train.num_workers", "data.workers"}
+# The rule that sizes the detector's epochs to a host (its minutes and floor) chose a run's epochs, which define it;
+# the rule itself does not (a run sized under an earlier floor with the same epochs is the same run). max_epochs stays:
+# a run pinned to it is the default run on a slow host (``_as_defined``).
+NOT_DEFINING_HERE = NOT_DEFINING | {"detector.num_workers", "relation.train.num_workers", "data.workers",
+                                    "detector.sizing.minutes", "detector.sizing.min_epochs"}
 NEEDED_METRICS = ("detector.shift.ap50.vehicle", "eval.shift.gt.deepword.mixed.pair_f1")
 
 

@@ -74,6 +74,11 @@ def test_a_default_run_sized_to_its_host_is_still_the_default():
     pinned = params | {"detector.epochs": cap}   # the most auto may choose, set outright: the same budget
     runs.insert(0, RunRecord("pinned", "default", 3, pinned, _metrics(65.0), QUICK))
     assert headline_table(runs, "adapt")[1] == {"headline": "pinned"}
+    # sized under another rule (minutes, floor): its epochs define it, not the rule that chose them
+    other_rule = sized | {"detector.sizing.min_epochs": "10", "detector.sizing.minutes": "15"}
+    assert params["detector.sizing.min_epochs"] != "10"
+    runs.insert(0, RunRecord("other_rule", "default", 4, other_rule, _metrics(75.0), QUICK))
+    assert headline_table(runs, "adapt")[1] == {"headline": "other_rule"}
 
 
 def _adapt_run(name: str, recipe: str, draw: int, base: str, metrics: dict, start: int = 5, **extra) -> RunRecord:
