@@ -28,7 +28,6 @@ def pytest_itemcollected(item):
     info = getattr(item, "_fixtureinfo", None)
     homes = {fixture.baseid for defs in (info.name2fixturedefs.values() if info else ())
              for fixture in defs[-1:] if fixture.scope in ("module", "session")}
-    homes.discard("")
-    homes.discard("tests")
+    homes -= {"", "tests"}
     if homes:
         item.add_marker(pytest.mark.xdist_group(min(homes, key=len)))  # the widest scope: one group covers both

@@ -29,3 +29,14 @@ def address_in_use(log: str) -> bool:
     """Whether a server's log says it could not bind its port (as uvicorn, which ``mlflow server`` and ``mlflow ui``
     run on, and PostgreSQL say it)."""
     return "address already in use" in log.lower()
+
+
+@contextlib.contextmanager
+def taken_port():
+    """A port on 127.0.0.1 held by a listener of the test's own while the block runs, bound as uvicorn binds
+    (``SO_REUSEADDR``): what another test's server holds when a server started on it finds it taken."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        yield s.getsockname()[1]

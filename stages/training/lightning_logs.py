@@ -21,16 +21,12 @@ from lightning.pytorch.callbacks import ProgressBar
 
 from deepword.progress import on_terminal
 
-
-class _NoAdvertisement(logging.Filter):
-    """Drops Lightning's "Tip" lines, which advertise a cloud service rather than say anything about the run."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith(ADVERTISEMENT)
-
-
 ADVERTISEMENT = "\N{ELECTRIC LIGHT BULB} Tip:"
-_NO_ADVERTISEMENT = _NoAdvertisement()
+
+
+def _not_an_advertisement(record: logging.LogRecord) -> bool:
+    """A logging filter: Lightning's "Tip" lines advertise a cloud service rather than say anything about the run."""
+    return not str(record.msg).startswith(ADVERTISEMENT)
 
 
 def route_lightning_logs() -> None:
@@ -40,8 +36,7 @@ def route_lightning_logs() -> None:
     import lightning  # noqa: F401  (importing it is what adds the handler)
 
     rank_zero = logging.getLogger("lightning.pytorch.utilities.rank_zero")  # where rank_zero_info logs
-    if _NO_ADVERTISEMENT not in rank_zero.filters:
-        rank_zero.addFilter(_NO_ADVERTISEMENT)
+    rank_zero.addFilter(_not_an_advertisement)  # a filter already there is not added twice
     if not logging.getLogger().handlers:
         return
     for name in ("lightning", "lightning.pytorch", "lightning.fabric"):

@@ -6,7 +6,6 @@ starts again on another (``MlflowServer.wait_ready``)."""
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 
@@ -15,7 +14,7 @@ import pytest
 from tests.experiments import pipeline_runs
 from tests.experiments.pipeline_runs import REPO, MlflowServer, run_pipeline
 from tests.experiments.postgres_cluster import PostgresCluster, find_bin_dir
-from tests.ports import refused_port
+from tests.ports import refused_port, taken_port
 
 pytestmark = pytest.mark.slow
 
@@ -29,18 +28,15 @@ def server(tmp_path, monkeypatch):
     it under two test processes): ``srv.lost_port`` is that port, and the server must be answering on another."""
     bin_dir = find_bin_dir()
     database = PostgresCluster(bin_dir) if bin_dir is not None else None
-    with socket.socket() as taken:
-        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
-        taken.bind(("127.0.0.1", 0))
-        taken.listen()
-        ports = iter([taken.getsockname()[1]])
+    with taken_port() as lost_port:
+        ports = iter([lost_port])
         real_free_port = pipeline_runs.free_port
         monkeypatch.setattr(pipeline_runs, "free_port", lambda: next(ports, None) or real_free_port())
         try:
             if database is not None:
                 database.start()
             srv = MlflowServer(tmp_path, backend_uri=database.uri if database else None)
-            srv.database, srv.lost_port = database, taken.getsockname()[1]
+            srv.database, srv.lost_port = database, lost_port
             try:
                 srv.wait_ready()
                 yield srv
