@@ -369,8 +369,13 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
     epoch_s = steps * (step_s + augment_s) + val_batches * forward_s
     seconds = members * expected * epoch_s
     augmenting = f" + {1000 * augment_s:.0f} ms augmentation" if augment_s else ""
+    student = ""
+    if members > 1 and bool((_plain(rel.get("distill")) or {}).get("enabled")):
+        # the student (relation.distill) trains as a member does, and each of its steps also runs the members forward
+        seconds += expected * (epoch_s + steps * members * forward_s)
+        student = f" + a student taught by them (+{members} x {1000 * forward_s:.0f} ms forward a step)"
     return {"seconds": seconds,
-            "note": f"{members} network(s) x {expected if expected == epochs else f'~{expected} of {epochs}'} epochs x ({steps} steps x ({1000 * step_s:.0f} ms{augmenting}) + "
+            "note": f"{members} network(s){student} x {expected if expected == epochs else f'~{expected} of {epochs}'} epochs x ({steps} steps x ({1000 * step_s:.0f} ms{augmenting}) + "
                     f"{val_batches} "
                     f"val batches) ({_precision_name(precision, channels_last)} backbone, batch {batch}, {threads} "
                     "threads); early stopping (patience "

@@ -26,6 +26,7 @@ from deepword.relation_graph import InputConfig, SplitInputs, build_split, check
 from deepword.word_format import load_image, open_dataset
 from pipeline.tracking import stage_run_info
 from stages.relation.augment import AugmentConfig
+from stages.relation.distill import STUDENT, DistillConfig
 from stages.relation.simulate import DetectionNoise, with_simulated_detections
 from stages.relation.warm_start import fine_tuning, start_states
 from stages.relation.warp import BoxWarpConfig
@@ -110,11 +111,23 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     members = [train_member(cfg, ds, priors, in_cfg, model_cfg, val, seed, out_dir, k if n_members > 1 else None,
                             starts[k])
                for k, seed in enumerate(seeds)]
-    if members[0] is None:  # another rank of a DDP launch: rank 0 saves and reports
+    distill = DistillConfig.from_cfg(rel.get("distill"))
+    taught = distill.enabled and n_members > 1  # one network taught by the members ships in their place
+    if members[0] is None and not taught:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
-    modules = [m.module for m in members]  # on the CPU already (train_member)
+    student = None
+    if taught:
+        teachers = teachers_on_every_rank(members)  # every rank of a DDP launch trains the student
+        teachers_val = score_split(teachers, val, int(rel.train.batch_size)) if members[0] is not None else {}
+        # fine-tuning (init): the student starts where the members did, from the earlier run's weights
+        start = starts[0] if "init" in cfg else teachers[0].model.state_dict() if distill.start == "member" else None
+        student = train_member(cfg, ds, priors, in_cfg, model_cfg, val, seeds[-1] + 1, out_dir, STUDENT, start,
+                               teachers=teachers)
+        if student is None:
+            return {}
+    modules = [student.module] if student is not None else [m.module for m in members]  # on the CPU (train_member)
     nets = [m.model.eval() for m in modules]
-    net = nets[0] if n_members == 1 else RelationEnsemble(nets).eval()
+    net = nets[0] if len(nets) == 1 else RelationEnsemble(nets).eval()
     val_metrics = score_split(modules, val, int(rel.train.batch_size))
 
     torch.save(net.state_dict(), out_dir / WEIGHTS_FILE)
@@ -124,21 +137,47 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                "relation.train.seconds": time.perf_counter() - started, "relation.bf16": float(members[0].bf16),
                "relation.ensemble": float(n_members)}
     metrics.update({f"relation.val.{k}": float(v) for k, v in val_metrics.items()})
+    headline = ("wheel_acc", "image_acc", "pair_f1")
     if n_members > 1:  # each member alone, to see what the ensemble adds
         for k, member in enumerate(members):
             metrics.update({f"relation.member{k}.val.{name}": float(v) for name, v in member.val_metrics.items()
-                            if name in ("wheel_acc", "image_acc", "pair_f1")})
+                            if name in headline})
+    if student is not None:  # what the student learnt of its teachers
+        metrics.update({f"relation.teachers.val.{name}": float(v) for name, v in teachers_val.items() if name in headline})
+        metrics["relation.student.epochs"] = float(len(student.history))
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         "model": asdict(model_cfg), "inputs": asdict(in_cfg), "decode": plain_config(rel)["decode"],
-        "has_roles": members[0].has_roles, "seed": seeds[0], "seeds": seeds, "ensemble": n_members,
+        "has_roles": members[0].has_roles, "seed": seeds[0], "seeds": seeds, "ensemble": len(nets),
+        "distilled_from": n_members if student is not None else None,
         "best_epoch": best_epoch, "best_epochs": [m.best_epoch for m in members], "metrics": metrics,
-        "curves": history, "member_curves": [m.history for m in members[1:]]}, indent=1))
+        "curves": history, "member_curves": [m.history for m in members[1:]],
+        "student_curves": student.history if student is not None else None}, indent=1))
     # the first member's curves (an ensemble's others are in relation.json's member_curves)
     plot_curves(history, out_dir / "artifacts" / "relation_curves.png")
     shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry
     shutil.rmtree(out_dir / "checkpoints", ignore_errors=True)  # relation.pt holds the best weights
     shutil.rmtree(out_dir / "members", ignore_errors=True)
     return metrics
+
+
+def teachers_on_every_rank(members: list) -> list:
+    """The trained members' modules on every rank: rank 0 holds them (``train_member`` returns None on the others
+    of a DDP launch), so under a process group their hyper-parameters and weights are broadcast from it and rebuilt,
+    and all ranks then train the student together."""
+    import torch.distributed as dist
+
+    from stages.relation.lightning import RelationModule
+
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return [m.module for m in members]
+    payload = [[(dict(m.module.hparams), m.module.state_dict()) for m in members] if members[0] is not None else None]
+    dist.broadcast_object_list(payload, src=0)
+    modules = []
+    for hparams, state in payload[0]:
+        module = RelationModule(**hparams)
+        module.load_state_dict(state)
+        modules.append(module.eval())
+    return modules
 
 
 def plain_config(node) -> dict:
@@ -162,11 +201,12 @@ class TrainedMember:
 
 
 def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInputs, seed: int, out_dir: Path,
-                 index: int | None, start: dict | None = None) -> TrainedMember | None:
+                 index: int | str | None, start: dict | None = None, teachers: list | None = None) -> TrainedMember | None:
     """Train one relation network from ``seed`` (initial weights, shuffling, flips, augmentation and the simulated
-    detections all follow it); ``index``: its place in an ensemble (its checkpoints and finished weights then
-    live under ``members/<index>``, so an interrupted ensemble resumes where it stopped), None for a lone
-    network. ``start``: the state_dict it starts from (init=run|checkpoints), None for random weights. None on a
+    detections all follow it); ``index``: its place in an ensemble, or ``STUDENT`` (its checkpoints and finished
+    weights then live under ``members/<index>``, so an interrupted ensemble resumes where it stopped), None for a
+    lone network. ``start``: the state_dict it starts from (init=run|checkpoints), None for random weights.
+    ``teachers``: trained members whose mean outputs it also learns (``relation.distill``; the student). None on a
     DDP rank other than 0."""
     import lightning as L
     import torch
@@ -184,11 +224,15 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     channels_last = use_channels_last(bool(rel.train.channels_last), lambda: RelationNet(model_cfg).backbone,
                                       backbone_bf16, trains_on_gpu(tr.accelerator), "the relation backbone")
 
-    def new_module():
-        return RelationModule(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
-                              optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
-                              backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")),
-                              backbone_channels_last=channels_last)
+    def new_module(taught: bool = False):
+        options = dict(model=asdict(model_cfg), loss=plain["loss"], decode=plain["decode"],
+                       optim={"lr": float(rel.train.lr), "weight_decay": float(rel.train.weight_decay)},
+                       backbone_bf16=backbone_bf16, select=str(rel.train.get("select", "wheel_acc")),
+                       backbone_channels_last=channels_last)
+        if not taught:
+            return RelationModule(**options)
+        from stages.relation.student import DistilledRelationModule
+        return DistilledRelationModule(**options, distill=plain["distill"])
 
     member_dir = out_dir if index is None else out_dir / "members" / str(index)
     done = member_dir / "member.pt"
@@ -209,7 +253,9 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
                          priors, out_dir / "inputs", float(rel.val_min_box_px))
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
-    module = new_module()
+    module = new_module(taught=teachers is not None)
+    if teachers is not None:
+        module.teach(teachers)
     if start is not None:  # a resumed attempt's last.ckpt (trainer.fit below) then replaces them
         module.model.load_state_dict(start)
     augment = AugmentConfig.from_cfg(plain.get("augment"))
@@ -219,7 +265,8 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
     ckpt_dir = member_dir / "checkpoints"
     checkpoint, latest = best_and_latest(ckpt_dir, MONITOR, "max")
     history = CurveHistory()
-    label = "relation" if index is None else f"relation member {index + 1}/{int(rel.get('ensemble', 1))}"
+    label = ("relation" if index is None else "relation student" if index == STUDENT
+             else f"relation member {index + 1}/{int(rel.get('ensemble', 1))}")
     callbacks = [checkpoint, latest, EarlyStopping(monitor=MONITOR, mode="max", patience=int(rel.train.patience)),
                  history, *lightning_progress(label)]
     callbacks = [*weight_averaging(float(rel.train.get("ema_decay", 0.0))), *callbacks]

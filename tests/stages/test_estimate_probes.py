@@ -33,15 +33,23 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     # batch at a time), no loader workers on the CPU
     assert estimate.detector(cfg)["seconds"] == pytest.approx(4 * (train // 4) * 1.0 + 2 * math.ceil(val / 4) * 0.5)
     rel = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
-               "relation.train.limit_val_images=null", "relation.train.batch_size=8")
+               "relation.train.limit_val_images=null", "relation.train.batch_size=8", "relation.distill.enabled=false")
     steps = math.ceil(train * 2 / 8)  # each train image twice: once as annotated, once as a detector might see it
     # a train step: the probed step (0.5 s) + the crops' augmentation of its batch (0.5 s: timed a batch at a time)
     assert estimate.relation(rel)["seconds"] == pytest.approx(3 * 2 * (2 * steps + math.ceil(val / 8)) * 0.5)
     assert "augmentation" in estimate.relation(rel)["note"]
     plain = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
-                 "relation.train.limit_val_images=null", "relation.train.batch_size=8", "relation.augment.prob=0")
+                 "relation.train.limit_val_images=null", "relation.train.batch_size=8", "relation.augment.prob=0",
+                 "relation.distill.enabled=false")
     assert estimate.relation(plain)["seconds"] == pytest.approx(3 * 2 * (steps + math.ceil(val / 8)) * 0.5)
     assert "augmentation" not in estimate.relation(plain)["note"]
+    # relation.distill: a student after the members, its steps also running the three members forward (3 x 0.5 s)
+    taught = _cfg("relation.ensemble=3", "relation.train.epochs=2", "relation.train.limit_train_images=null",
+                  "relation.train.limit_val_images=null", "relation.train.batch_size=8", "relation.augment.prob=0",
+                  "relation.distill.enabled=true")
+    epoch = (steps + math.ceil(val / 8)) * 0.5
+    assert estimate.relation(taught)["seconds"] == pytest.approx(3 * 2 * epoch + 2 * (epoch + steps * 3 * 0.5))
+    assert "student" in estimate.relation(taught)["note"]
     # early stopping: 2 x patience epochs a network, the configured epochs at most
     stopping = _cfg("relation.ensemble=1", "relation.train.epochs=30", "relation.train.patience=3",
                     "relation.train.limit_train_images=null", "relation.train.limit_val_images=null",

@@ -210,6 +210,7 @@ def _stage_cfg(**train):
     rel.model.hidden, rel.model.embed_dim = 32, 16
     rel.train.epochs, rel.train.batch_size = 2, 8
     rel.ensemble = train.pop("ensemble", 1)  # one network unless a test asks for an ensemble
+    rel.distill.update(train.pop("distill", {}))
     rel.train.update(train)
     trainer = OmegaConf.create({"accelerator": "cpu", "devices": 1, "strategy": "auto", "num_nodes": 1,
                                 "precision": "auto", "threads": 1})  # bf16 backbone where the CPU has it
@@ -313,7 +314,7 @@ def test_an_ensemble_trains_its_members_from_consecutive_seeds_and_resumes(tmp_p
     monkeypatch.setattr(L.Trainer, "fit", counted_fit)
     out = tmp_path / "ensemble"
     out.mkdir()
-    cfg = _stage_cfg(epochs=1, ensemble=2)
+    cfg = _stage_cfg(epochs=1, ensemble=2, distill={"enabled": False})  # the members ship (the student's: test_relation_distill)
     inputs = {"data": tmp_path / "data", "priors": tmp_path / "priors"}
     with pytest.raises(KeyboardInterrupt):
         stage.run(cfg, inputs, out)

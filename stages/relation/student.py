@@ -1,0 +1,108 @@
+"""The student of ``relation.distill``: one relation network trained against the labels and its teachers, the trained
+ensemble's members (docs/domain.md, "One network taught by the three").
+
+The ensemble (``model.RelationEnsemble``) decides on the mean of its members' scores: steadier held out than any one
+network, at three times the inference. A student network of the same architecture trains on the same graphs (its
+own seed: shuffling, flips, augmentation, simulated detections) against the labels, as a member does, and against the
+members' mean outputs on the very crops it sees (after augmentation), so it learns the ensemble's function, not only
+the labels. It then ships alone: one network's inference.
+
+The teachers are plain attributes of the student's module, not sub-modules: the checkpoint, the weight average and
+the optimiser hold the student alone, and Lightning's ``train()`` never switches the teachers out of eval mode.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from deepword.word_format import WHEEL
+from stages.relation.decode import allowed_owners, type_masks
+from stages.relation.distill import DistillConfig
+from stages.relation.lightning import RelationModule
+from stages.relation.losses import RANK_TEMPERATURE
+from stages.relation.model import mean_outputs
+
+
+def balanced_l2(scores: torch.Tensor, teacher: torch.Tensor, labels: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference to the teachers' scores over the masked true pairs plus the same over the masked
+    non-pairs: each class averaged on its own, as the labels' L2 does (``losses.weighted_l2``), so the many
+    non-pairs do not drown the few owners."""
+    m = mask.to(scores.dtype)
+    pos = labels.to(scores.dtype) * m
+    neg = m - pos
+    diff = (scores - teacher) ** 2
+    return (pos * diff).sum() / pos.sum().clamp_min(1.0) + (neg * diff).sum() / neg.sum().clamp_min(1.0)
+
+
+def ranking_kl(scores: torch.Tensor, teacher: torch.Tensor, allowed: torch.Tensor,
+               temperature: float = RANK_TEMPERATURE) -> torch.Tensor:
+    """KL divergence of the student's softmax over each wheel's allowed vehicles (the owner ranking's, at its
+    temperature) from the teachers': the order the one-owner decode reads, taught as the teachers hold it. Mean over
+    wheels with at least two allowed vehicles (one has nothing to rank); 0 where the two rank alike."""
+    fill = torch.full_like(scores, -1e4)
+    log_p = torch.log_softmax(torch.where(allowed, scores / temperature, fill), dim=-1)
+    log_t = torch.log_softmax(torch.where(allowed, teacher / temperature, fill), dim=-1)
+    kl = (log_t.exp() * (log_t - log_p) * allowed.to(scores.dtype)).sum(dim=-1)
+    ranked = (allowed.sum(dim=-1) >= 2).to(scores.dtype)
+    return (kl * ranked).sum() / ranked.sum().clamp_min(1.0)
+
+
+def binary_kl(p: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Element-wise KL divergence of Bernoulli(p) from Bernoulli(t): the front probabilities' term."""
+    p, t = p.clamp(1e-6, 1 - 1e-6), t.clamp(1e-6, 1 - 1e-6)
+    return t * (torch.log(t) - torch.log(p)) + (1 - t) * (torch.log(1 - t) - torch.log(1 - p))
+
+
+def distillation_loss(outputs, teacher, batch: dict[str, torch.Tensor], role_weight: float, rank_weight: float,
+                      min_containment: float) -> torch.Tensor:
+    """The student's outputs (owner, couple, front) against the teachers' mean: balanced L2 on the candidate
+    wheel-vehicle and wheel-wheel scores, the owner ranking's KL divergence (weighted like the labels' ranking
+    term), and the front probabilities' KL divergence on the real wheels (weighted like the labels' role term). 0 where
+    the student answers as its teachers do."""
+    owner, couple, front = outputs
+    t_owner, t_couple, t_front = teacher
+    wv, ww = type_masks(batch["classes"])
+    cand = batch["cand"].bool()
+    loss = balanced_l2(owner, t_owner, batch["owner"], wv & cand) + balanced_l2(couple, t_couple, batch["couple"],
+                                                                               ww & cand)
+    if rank_weight > 0:
+        allowed = allowed_owners(batch["classes"], cand, batch["coords"], min_containment)
+        loss = loss + rank_weight * ranking_kl(owner, t_owner, allowed)
+    wheels = ((batch["classes"] == WHEEL) & batch["valid"].bool()).to(front.dtype)
+    return loss + role_weight * (binary_kl(front, t_front) * wheels).sum() / wheels.sum().clamp_min(1.0)
+
+
+class DistilledRelationModule(RelationModule):
+    """A RelationModule whose training loss adds the teachers' term (``distillation_loss``) to the labels'.
+    Validation, selection and the saved weights are a plain RelationModule's; ``teach`` hands it the trained
+    members before ``fit``."""
+
+    def __init__(self, *args, distill: dict | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.distill = DistillConfig(**(distill or {}))
+
+    def teach(self, teachers: list[RelationModule]) -> None:
+        for t in teachers:
+            t.eval().requires_grad_(False)
+        object.__setattr__(self, "_teachers", list(teachers))  # not sub-modules: see the module docstring
+
+    def training_step(self, batch, batch_idx):
+        teachers = getattr(self, "_teachers", None)
+        if not teachers:
+            raise RuntimeError("DistilledRelationModule: no teachers (call teach() with the trained members first)")
+        for t in teachers:  # on the student's device (a GPU run moves the student only)
+            t.to(self.device)
+        outputs = self(batch)
+        with torch.no_grad():
+            teacher = mean_outputs([t(batch) for t in teachers])
+        lc = self.hparams.loss
+        labels = self._loss(outputs, batch)["loss"]
+        taught = distillation_loss(outputs, teacher, batch, float(lc["role_weight"]), float(lc.get("rank_weight", 0.0)),
+                                   float(self.hparams.decode.get("min_containment", 0.0)))
+        loss = self.distill.label_weight * labels + self.distill.weight * taught
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"relation student: training loss is {loss.item()} (labels {labels.item()}, "
+                                     f"teachers {taught.item()}) at epoch {self.current_epoch}, batch {batch_idx}")
+        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True, batch_size=len(batch["classes"]))
+        self.log("train/taught", taught, on_step=False, on_epoch=True, batch_size=len(batch["classes"]))
+        return loss
