@@ -32,7 +32,8 @@ class CurveHistory(L.Callback):
         self.rows = list(state_dict["rows"])
 
 
-def plot_curves(rows: list[dict[str, float]], path: Path) -> Path:
+def plot_curves(rows: list[dict[str, float]], path: Path,
+                loss_title: str = "loss (weighted L2 + role + owner ranking)") -> Path:
     """Two panels: losses (log scale) and val wheel_acc (percent) over epochs."""
     import matplotlib
 
@@ -48,7 +49,7 @@ def plot_curves(rows: list[dict[str, float]], path: Path) -> Path:
             ax_loss.plot(*zip(*pts, strict=True), marker="o", ms=3, label=label)
     ax_loss.set_yscale("log")
     ax_loss.set_xlabel("epoch")
-    ax_loss.set_title("loss (weighted L2 + role + owner ranking)")
+    ax_loss.set_title(loss_title)
     ax_loss.legend()
     pts = [(r["epoch"], r["val/wheel_acc"]) for r in rows if "val/wheel_acc" in r]
     if pts:

@@ -2,11 +2,13 @@
 Lightning, keep the best weights by val wheel_acc.
 
 Outputs in the stage directory:
-- ``relation.pt``   the best RelationNet state_dict, or the RelationEnsemble's (``relation.ensemble`` > 1: its
-                    members trained from consecutive seeds); load with ``load_network``;
+- ``relation.pt``   the best RelationNet state_dict: the student the members teach (``relation.distill``), or the
+                    RelationEnsemble's (``relation.ensemble`` > 1 without it: its members trained from consecutive
+                    seeds); load with ``load_network``;
 - ``relation.json`` what the predictor and the export stage need to rebuild it: model and input
                     config, decoding, whether roles were learned, seed, metrics;
-- ``artifacts/relation_curves.png`` training curves (also in the stage's MLflow run when tracked).
+- ``artifacts/relation_curves.png`` training curves of the first network (also in the stage's MLflow run when
+                    tracked); ``artifacts/relation_student_curves.png`` the student's.
 While training, ``inputs/<split>.npz`` (cropped graphs), ``checkpoints/`` (``last.ckpt`` for resuming) and, for an
 ensemble, ``members/<k>/`` (each finished member, so an interrupted stage resumes after it) live in the stage
 directory too; all are removed once the stage succeeds.
@@ -152,8 +154,11 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         "best_epoch": best_epoch, "best_epochs": [m.best_epoch for m in members], "metrics": metrics,
         "curves": history, "member_curves": [m.history for m in members[1:]],
         "student_curves": student.history if student is not None else None}, indent=1))
-    # the first member's curves (an ensemble's others are in relation.json's member_curves)
+    # the first member's curves (an ensemble's others are in relation.json's member_curves), and the shipped student's
     plot_curves(history, out_dir / "artifacts" / "relation_curves.png")
+    if student is not None:
+        plot_curves(student.history, out_dir / "artifacts" / "relation_student_curves.png",
+                    "student's loss (labels' + teachers' terms; val: labels')")
     shutil.rmtree(cache_dir, ignore_errors=True)  # re-croppable; would bloat the cache entry
     shutil.rmtree(out_dir / "checkpoints", ignore_errors=True)  # relation.pt holds the best weights
     shutil.rmtree(out_dir / "members", ignore_errors=True)

@@ -91,6 +91,7 @@ def test_the_stage_ships_one_student_taught_by_the_members(tmp_path):
     assert {"relation.teachers.val.wheel_acc", "relation.member1.val.wheel_acc", "relation.val.wheel_acc",
             "relation.student.epochs"} <= set(metrics)
     assert sorted(p.name for p in out.iterdir()) == ["artifacts", "relation.json", "relation.pt"]
+    assert (out / "artifacts" / "relation_student_curves.png").stat().st_size > 1000
     net, _ = stage.load_network(out)
     assert isinstance(net, RelationNet)
     _, lone = _run_stage(tmp_path, "lone_seed_2", epochs=1, seed=2)  # the student's seed, without teachers
