@@ -70,7 +70,7 @@ def shipped_relation(rel):
     from stages.relation.model import ModelConfig, RelationEnsemble, RelationNet
 
     cfg, members = ModelConfig.from_cfg(rel), int(rel.get("ensemble", 1))
-    if members > 1 and not DistillConfig.from_cfg(rel.get("distill")).enabled:
+    if members > 1 and not DistillConfig.from_cfg(rel.get("distill")).ships_student(members):
         return RelationEnsemble([RelationNet(cfg) for _ in range(members)]).eval()
     return RelationNet(cfg).eval()
 

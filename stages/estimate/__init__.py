@@ -307,6 +307,7 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
 
     from deepword.relation_graph import InputConfig
     from stages.relation.augment import AugmentConfig, augment_crops
+    from stages.relation.distill import DistillConfig
     from stages.relation.lightning import RelationModule, collate_graphs
     from stages.relation.model import ModelConfig, RelationNet
     from stages.training.memory_format import use_channels_last
@@ -370,7 +371,7 @@ def relation(cfg: DictConfig, context=None) -> dict | None:
     seconds = members * expected * epoch_s
     augmenting = f" + {1000 * augment_s:.0f} ms augmentation" if augment_s else ""
     student = ""
-    if members > 1 and bool((_plain(rel.get("distill")) or {}).get("enabled")):
+    if DistillConfig.from_cfg(rel.get("distill")).ships_student(members):
         # the student (relation.distill) trains as a member does, and each of its steps also runs the members forward
         seconds += expected * (epoch_s + steps * members * forward_s)
         student = f" + a student taught by them (+{members} x {1000 * forward_s:.0f} ms forward a step)"

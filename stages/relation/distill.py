@@ -31,3 +31,7 @@ class DistillConfig:
             raise ValueError(f"relation.distill.start must be one of {STARTS}, got {cfg.start!r}")
         return cfg
 
+    def ships_student(self, members: int) -> bool:
+        """Whether the relation stage ships a student rather than its ``members`` networks (one has nothing to teach)."""
+        return self.enabled and members > 1
+

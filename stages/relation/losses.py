@@ -14,15 +14,28 @@ def weighted_l2(scores: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, 
     """pos_weight x mean over masked true pairs of (s - 1)^2 + neg_weight x mean over masked non-pairs of
     s^2. Averaging each class on its own keeps the many non-pairs (a wheel has one owner among all
     vehicles of a hard image) from drowning the positives, which otherwise stalls training at s = 0."""
+    return balanced_squared_error(scores, target, target, mask, pos_weight, neg_weight)
+
+
+def balanced_squared_error(scores: torch.Tensor, target: torch.Tensor, labels: torch.Tensor, mask: torch.Tensor,
+                           pos_weight: float = 1.0, neg_weight: float = 1.0) -> torch.Tensor:
+    """(s - target)^2 averaged over the masked true pairs (``labels``) and over the masked non-pairs apart, weighted:
+    ``weighted_l2`` against the 0/1 labels themselves, the student's term against its teachers' scores."""
     m = mask.to(scores.dtype)
-    pos = target.to(scores.dtype) * m
+    pos = labels.to(scores.dtype) * m
     neg = m - pos
-    pos_term = (pos * (scores - 1.0) ** 2).sum() / pos.sum().clamp_min(1.0)
-    neg_term = (neg * scores**2).sum() / neg.sum().clamp_min(1.0)
+    error = (scores - target.to(scores.dtype)) ** 2
+    pos_term = (pos * error).sum() / pos.sum().clamp_min(1.0)
+    neg_term = (neg * error).sum() / neg.sum().clamp_min(1.0)
     return pos_weight * pos_term + neg_weight * neg_term
 
 
 RANK_TEMPERATURE = 0.1  # cosines span [-1, 1]: /0.1 lets the softmax approach one-hot
+
+
+def allowed_log_softmax(scores: torch.Tensor, allowed: torch.Tensor, temperature: float = RANK_TEMPERATURE) -> torch.Tensor:
+    """Log-softmax of each row's scores / ``temperature`` over its allowed columns (the others get ~0 probability)."""
+    return torch.log_softmax(torch.where(allowed, scores / temperature, torch.full_like(scores, -1e4)), dim=-1)
 
 
 def owner_ranking(scores: torch.Tensor, target: torch.Tensor, allowed: torch.Tensor,
@@ -31,10 +44,9 @@ def owner_ranking(scores: torch.Tensor, target: torch.Tensor, allowed: torch.Ten
     wheel's ownership scores / ``temperature`` over those vehicles. The one-owner decode keeps each wheel's best vehicle,
     a ranking the L2 loss trains only indirectly (it pulls every score to 0 or 1 on its own): a wheel
     inside two vehicle boxes is scored right by L2 on average while its two vehicles swap places."""
-    logits = torch.where(allowed, scores / temperature, torch.full_like(scores, -1e4))
     positive = target.bool() & allowed
     has_owner = positive.any(dim=-1)
-    log_p = torch.log_softmax(logits, dim=-1)
+    log_p = allowed_log_softmax(scores, allowed, temperature)
     nll = -(log_p * positive.to(scores.dtype)).sum(dim=-1)
     return (nll * has_owner.to(scores.dtype)).sum() / has_owner.sum().clamp_min(1)
 

@@ -114,7 +114,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                             starts[k])
                for k, seed in enumerate(seeds)]
     distill = DistillConfig.from_cfg(rel.get("distill"))
-    taught = distill.enabled and n_members > 1  # one network taught by the members ships in their place
+    taught = distill.ships_student(n_members)  # one network taught by the members ships in their place
     if members[0] is None and not taught:  # another rank of a DDP launch: rank 0 saves and reports
         return {}
     student = None

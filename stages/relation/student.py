@@ -19,19 +19,8 @@ from deepword.word_format import WHEEL
 from stages.relation.decode import allowed_owners, type_masks
 from stages.relation.distill import DistillConfig
 from stages.relation.lightning import RelationModule
-from stages.relation.losses import RANK_TEMPERATURE
+from stages.relation.losses import RANK_TEMPERATURE, allowed_log_softmax, balanced_squared_error
 from stages.relation.model import mean_outputs
-
-
-def balanced_l2(scores: torch.Tensor, teacher: torch.Tensor, labels: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared difference to the teachers' scores over the masked true pairs plus the same over the masked
-    non-pairs: each class averaged on its own, as the labels' L2 does (``losses.weighted_l2``), so the many
-    non-pairs do not drown the few owners."""
-    m = mask.to(scores.dtype)
-    pos = labels.to(scores.dtype) * m
-    neg = m - pos
-    diff = (scores - teacher) ** 2
-    return (pos * diff).sum() / pos.sum().clamp_min(1.0) + (neg * diff).sum() / neg.sum().clamp_min(1.0)
 
 
 def ranking_kl(scores: torch.Tensor, teacher: torch.Tensor, allowed: torch.Tensor,
@@ -39,9 +28,8 @@ def ranking_kl(scores: torch.Tensor, teacher: torch.Tensor, allowed: torch.Tenso
     """KL divergence of the student's softmax over each wheel's allowed vehicles (the owner ranking's, at its
     temperature) from the teachers': the order the one-owner decode reads, taught as the teachers hold it. Mean over
     wheels with at least two allowed vehicles (one has nothing to rank); 0 where the two rank alike."""
-    fill = torch.full_like(scores, -1e4)
-    log_p = torch.log_softmax(torch.where(allowed, scores / temperature, fill), dim=-1)
-    log_t = torch.log_softmax(torch.where(allowed, teacher / temperature, fill), dim=-1)
+    log_p = allowed_log_softmax(scores, allowed, temperature)
+    log_t = allowed_log_softmax(teacher, allowed, temperature)
     kl = (log_t.exp() * (log_t - log_p) * allowed.to(scores.dtype)).sum(dim=-1)
     ranked = (allowed.sum(dim=-1) >= 2).to(scores.dtype)
     return (kl * ranked).sum() / ranked.sum().clamp_min(1.0)
@@ -63,8 +51,9 @@ def distillation_loss(outputs, teacher, batch: dict[str, torch.Tensor], role_wei
     t_owner, t_couple, t_front = teacher
     wv, ww = type_masks(batch["classes"])
     cand = batch["cand"].bool()
-    loss = balanced_l2(owner, t_owner, batch["owner"], wv & cand) + balanced_l2(couple, t_couple, batch["couple"],
-                                                                               ww & cand)
+    # the true pairs and the non-pairs (by the labels) averaged apart, as the labels' own L2
+    loss = (balanced_squared_error(owner, t_owner, batch["owner"], wv & cand)
+            + balanced_squared_error(couple, t_couple, batch["couple"], ww & cand))
     if rank_weight > 0:
         allowed = allowed_owners(batch["classes"], cand, batch["coords"], min_containment)
         loss = loss + rank_weight * ranking_kl(owner, t_owner, allowed)
@@ -86,12 +75,14 @@ class DistilledRelationModule(RelationModule):
             t.eval().requires_grad_(False)
         object.__setattr__(self, "_teachers", list(teachers))  # not sub-modules: see the module docstring
 
+    def on_fit_start(self) -> None:
+        for t in getattr(self, "_teachers", ()):  # on the student's device (a GPU run moves the student only)
+            t.to(self.device)
+
     def training_step(self, batch, batch_idx):
         teachers = getattr(self, "_teachers", None)
         if not teachers:
             raise RuntimeError("DistilledRelationModule: no teachers (call teach() with the trained members first)")
-        for t in teachers:  # on the student's device (a GPU run moves the student only)
-            t.to(self.device)
         outputs = self(batch)
         with torch.no_grad():
             teacher = mean_outputs([t(batch) for t in teachers])
