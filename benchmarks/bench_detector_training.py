@@ -345,7 +345,7 @@ def facing_step_ratio(steps: int, peaks: dict[str, float], native_bf16: bool) ->
     for name, (_, channels_last) in variants.items():
         torch.manual_seed(0)
         fmt = torch.channels_last if channels_last else torch.contiguous_format
-        net = FacingNet(tuple(fc.widths), int(fc.hidden)).to(memory_format=fmt).train()
+        net = FacingNet(tuple(fc.widths), int(fc.hidden), tuple(fc.convs)).to(memory_format=fmt).train()
         state[name] = (net, torch.optim.AdamW(net.parameters(), lr=1e-3), crops.contiguous(memory_format=fmt))
 
     def step(name: str) -> float:

@@ -438,7 +438,7 @@ def facing(cfg: DictConfig, context=None) -> dict | None:
     threads = int(fc["train"].get("threads") or 1)
     with _threads(threads):
         torch.manual_seed(0)
-        net = FacingNet(tuple(fc["widths"]), int(fc["hidden"]))
+        net = FacingNet(tuple(fc["widths"]), int(fc["hidden"]), fc.get("convs"))
         channels_last = use_channels_last(bool(fc["train"]["channels_last"]), net, precision == BF16,
                                           device.type != "cpu", "the facing network")
         fmt = torch.channels_last if channels_last else torch.contiguous_format

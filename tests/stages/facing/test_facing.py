@@ -89,6 +89,18 @@ def test_the_loss_rewards_the_right_direction_and_grows_the_vector_with_certaint
     assert FacingNet((4, 8), 8)(torch.zeros((3, 3, 24, 24), dtype=torch.uint8)).shape == (3, 2)
 
 
+def test_convs_sets_each_blocks_layers_and_two_keeps_the_weight_names_of_older_networks():
+    two = FacingNet((4, 8), 8)
+    assert two.state_dict().keys() == FacingNet((4, 8), 8, (2, 2)).state_dict().keys()   # facing.pt of older runs
+    one = FacingNet((4, 8), 8, (1, 2))
+    convs = [sum(isinstance(m, torch.nn.Conv2d) for m in block) for block in one.features]
+    assert convs == [1, 2]
+    assert one(torch.zeros((2, 3, 24, 24), dtype=torch.uint8)).shape == (2, 2)
+    for bad in ((2,), (0, 2)):
+        with pytest.raises(ValueError, match="facing.convs"):
+            FacingNet((4, 8), 8, bad)
+
+
 @pytest.fixture(scope="module")
 def trained(rendered, tmp_path_factory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("facing")
