@@ -50,12 +50,17 @@ def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     epoch = (steps + math.ceil(val / 8)) * 0.5
     assert estimate.relation(taught)["seconds"] == pytest.approx(3 * 2 * epoch + 2 * (epoch + steps * 3 * 0.5))
     assert "student" in estimate.relation(taught)["note"]
-    # early stopping: 2 x patience epochs a network, the configured epochs at most
+    # early stopping: the epochs to the usual best plus the patience a network, the configured epochs at most
     stopping = _cfg("relation.ensemble=1", "relation.train.epochs=30", "relation.train.patience=3",
                     "relation.train.limit_train_images=null", "relation.train.limit_val_images=null",
                     "relation.train.batch_size=8", "relation.augment.prob=0")
-    assert estimate.relation(stopping)["seconds"] == pytest.approx(6 * (steps + math.ceil(val / 8)) * 0.5)
-    assert "~6 of 30 epochs" in estimate.relation(stopping)["note"]
+    expected = estimate.RELATION_BEST_EPOCH + 3
+    assert estimate.relation(stopping)["seconds"] == pytest.approx(expected * (steps + math.ceil(val / 8)) * 0.5)
+    assert f"~{expected} of 30 epochs" in estimate.relation(stopping)["note"]
+    short = _cfg("relation.ensemble=1", "relation.train.epochs=7", "relation.train.patience=3",
+                 "relation.train.limit_train_images=null", "relation.train.limit_val_images=null",
+                 "relation.train.batch_size=8", "relation.augment.prob=0")
+    assert estimate.relation(short)["seconds"] == pytest.approx(7 * (steps + math.ceil(val / 8)) * 0.5)
     fac = _cfg("facing.train.epochs=3", "facing.train.batch_size=16")
     crops, val_crops = train * estimate.MEAN_OBJECTS * estimate.VEHICLE_SHARE, val * estimate.MEAN_OBJECTS / 3
     # every train vehicle twice (as labelled and jittered); val flip-averaged: two forward passes a batch
