@@ -113,6 +113,30 @@ def test_subset_relation_runs_each_distinct_subset_once():
     assert len(calls) == len(set(calls)) == len(relation.predicted) < 36
 
 
+def test_masks_at_many_points_are_each_points_own_mask():
+    from deepword.inference.runtime import kept_mask
+    from deepword.operating_point.search import kept_masks
+
+    points = [OperatingPoint(t, m) for t in itertools.product([0.1, 0.3, 0.5, 0.9], repeat=2)
+              for m in itertools.product([0.0, 30.0], [0.0, 8.0, 25.0])]
+    thresholds = np.array([p.thresholds for p in points])
+    sides = np.array([p.min_sides for p in points])
+    for rec in (DETECTIONS, SMALL_FALSE, replace(DETECTIONS, boxes=DETECTIONS.boxes[:0])):
+        masks = kept_masks(rec, thresholds, sides)
+        assert masks.shape == (len(points), len(rec.boxes))
+        for p, row in zip(points, masks, strict=True):
+            assert np.array_equal(row, kept_mask(rec, p.thresholds, p.min_sides))
+
+
+def test_an_image_without_detections_scores_as_its_truth_says():
+    rear = "images/rear/000001.png"
+    truths = [TRUTH, replace(TRUTH, image=rear)]
+    detections = [DETECTIONS, replace(DETECTIONS, image=rear, boxes=DETECTIONS.boxes[:0])]
+    _, seen = search_operating_point(truths, detections, tightest_vehicle, 2, [0.1, 0.5])
+    assert seen == pytest.approx({p: end_to_end_score(truths, detections, p, tightest_vehicle, 0.0, 0.5) for p in seen})
+    assert max(seen.values()) < 100.0   # the rear image's pairs are all missed
+
+
 def test_empty_grid_is_an_error():
     with pytest.raises(ValueError, match="grid is empty"):
         search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, [])
