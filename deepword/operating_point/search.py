@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -46,6 +46,7 @@ __all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "Sub
 # method on the val split that the search maximises; the export stage's metric keys, ``deepword tune``'s bundle
 # entries and the report's labels are named after it
 CRITERION = "pair_f1"
+COUNT_FIELDS = tuple(f.name for f in fields(Counts))
 DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
 
 
@@ -58,6 +59,24 @@ def kept_masks(record: Record, thresholds: np.ndarray, min_sides: np.ndarray) ->
     shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
     thresholds, min_sides = np.asarray(thresholds, dtype=np.float64), np.asarray(min_sides, dtype=np.float64)
     return (record.scores[None, :] >= thresholds[:, classes]) & (shorter[None, :] >= min_sides[:, classes])
+
+
+def distinct_rows(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the first row of each distinct row of the boolean ``masks`` (P, n), each row's distinct row's index): rows
+    packed into 64-bit words and sorted stably, a few times faster than ``np.unique(axis=0)``, which sorts rows as
+    opaque bytes. A matrix without columns has one distinct (empty) row."""
+    if masks.shape[1] == 0:
+        return np.zeros(1, np.int64), np.zeros(len(masks), np.int64)
+    packed = np.packbits(masks, axis=1)
+    packed = np.pad(packed, ((0, 0), (0, -packed.shape[1] % 8)))
+    words = np.ascontiguousarray(packed).view(np.uint64)                       # (P, words)
+    order = np.lexsort(words.T[::-1])                                          # stable: the first of equals first
+    ordered = words[order]
+    starts = np.ones(len(order), dtype=bool)
+    starts[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    inverse = np.empty(len(order), dtype=np.int64)
+    inverse[order] = np.cumsum(starts) - 1
+    return order[starts], inverse
 
 
 @dataclass(frozen=True)
@@ -161,12 +180,9 @@ class SubsetScores:
         slot = np.empty((len(self.detections), len(points)), dtype=np.int64)   # image x point -> index into keys
         for i, d in enumerate(self.detections):
             masks = kept_masks(d, thresholds, min_sides)                        # (P, boxes)
-            if masks.shape[1] == 0:   # no detections: one empty subset at every point
-                distinct, first_point, inverse = masks[:1], np.zeros(1, np.int64), np.zeros(len(points), np.int64)
-            else:
-                distinct, first_point, inverse = np.unique(masks, axis=0, return_index=True, return_inverse=True)
-            slot[i] = len(keys) + inverse.reshape(-1)
-            keys += [(i, row.tobytes()) for row in distinct]
+            first_point, inverse = distinct_rows(masks)
+            slot[i] = len(keys) + inverse
+            keys += [(i, masks[p].tobytes()) for p in first_point]
             first += first_point.tolist()
         new = sorted((k for k, key in enumerate(keys) if key not in self.counts), key=lambda k: (first[k], keys[k][0]))
         if new:
@@ -174,9 +190,11 @@ class SubsetScores:
             for k, pred in zip(new, preds, strict=True):
                 i = keys[k][0]
                 self.counts[keys[k]] = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
-        table = np.array([astuple(self.counts[key]) for key in keys], dtype=np.int64)   # (subsets, count fields)
+        table = np.array([[getattr(self.counts[key], name) for name in COUNT_FIELDS] for key in keys],
+                         dtype=np.int64)                                                  # (subsets, count fields)
         totals = table[slot].sum(axis=0)                                                    # (P, count fields)
-        return [Counts(*(int(v) for v in row)).percentages()[CRITERION] for row in totals]
+        return [Counts(**dict(zip(COUNT_FIELDS, map(int, row), strict=True))).percentages()[CRITERION]
+                for row in totals]
 
 
 class SubsetRelation:

@@ -128,6 +128,20 @@ def test_masks_at_many_points_are_each_points_own_mask():
             assert np.array_equal(row, kept_mask(rec, p.thresholds, p.min_sides))
 
 
+def test_distinct_rows_are_first_occurrences_and_every_row_maps_to_its_equal():
+    from deepword.operating_point.search import distinct_rows
+
+    rng = np.random.default_rng(0)
+    for n in (1, 7, 64, 65, 130):
+        masks = rng.random((300, n)) < 0.9   # narrow rows repeat, wide ones seldom
+        first, inverse = distinct_rows(masks)
+        assert len(first) == len(np.unique(masks, axis=0))
+        assert all(np.array_equal(masks[first[inverse[p]]], masks[p]) for p in range(len(masks)))
+        assert all(not any(np.array_equal(masks[q], masks[f]) for q in range(f)) for f in first)
+    first, inverse = distinct_rows(np.zeros((5, 0), dtype=bool))
+    assert first.tolist() == [0] and inverse.tolist() == [0] * 5
+
+
 def test_an_image_without_detections_scores_as_its_truth_says():
     rear = "images/rear/000001.png"
     truths = [TRUTH, replace(TRUTH, image=rear)]
