@@ -63,7 +63,7 @@ def random_graphs(counts, size: int, seed: int = 0) -> list:
     return graphs
 
 
-def shipped_relation(rel):
+def default_relation_model(rel):
     """What the relation stage ships for the ``relation`` config: one network, or (``relation.ensemble`` > 1 without
     ``relation.distill``) the ensemble of that many, exported as one graph."""
     from stages.relation.distill import DistillConfig
@@ -88,7 +88,7 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
 
     rel, det = default_configs()
     torch.manual_seed(0)
-    net = shipped_relation(OmegaConf.create(rel))
+    net = default_relation_model(OmegaConf.create(rel))
     in_cfg = InputConfig.from_cfg(OmegaConf.create(rel))
     det_cfg = model_config(det)
     det_net = build_centernet(det_cfg).eval()

@@ -216,16 +216,23 @@ def bundle_method(name: str, bundle_dir: str | os.PathLike, root: str | os.PathL
 
 # --- detector ---------------------------------------------------------------------------------------
 
+def kept_masks(record: Record, thresholds: np.ndarray, min_sides: np.ndarray) -> np.ndarray:
+    """Which boxes each of P operating points keeps, (P, boxes): a score of at least the point's threshold for the
+    box's class (``thresholds`` (P, classes)) and a shorter side of at least its minimum (``min_sides`` (P, classes),
+    image pixels). The operating-point search asks this of thousands of points at once."""
+    classes = record.class_ids.astype(int)
+    xyxy = record.xyxy
+    shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
+    thresholds, min_sides = np.asarray(thresholds, dtype=np.float64), np.asarray(min_sides, dtype=np.float64)
+    return (record.scores[None, :] >= thresholds[:, classes]) & (shorter[None, :] >= min_sides[:, classes])
+
+
 def kept_mask(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> np.ndarray:
     """Which boxes reach their class's score threshold (``thresholds[class_id]``) and, with ``min_sides``, their
-    class's minimum shorter side (image pixels)."""
-    classes = record.class_ids.astype(int)
-    keep = record.scores >= np.asarray(thresholds, dtype=np.float64)[classes]
-    if min_sides is not None:
-        xyxy = record.xyxy
-        shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
-        keep &= shorter >= np.asarray(min_sides, dtype=np.float64)[classes]
-    return keep
+    class's minimum shorter side (image pixels): ``kept_masks`` at one point (no minimum side: -inf)."""
+    sides = np.full(len(thresholds), -np.inf) if min_sides is None else min_sides
+    return kept_masks(record, np.asarray(thresholds, dtype=np.float64)[None],
+                      np.asarray(sides, dtype=np.float64)[None])[0]
 
 
 def keep_at(record: Record, thresholds: Sequence[float], min_sides: Sequence[float] | None = None) -> Record:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from deepword.inference.runtime import keep_at
+from deepword.inference.runtime import keep_at, kept_masks
 from deepword.metrics import Counts, score_image, score_records
 from deepword.relation_graph import subgraph
 from deepword.word_format import Record
@@ -48,17 +48,6 @@ __all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "Sub
 CRITERION = "pair_f1"
 COUNT_FIELDS = tuple(f.name for f in fields(Counts))
 DEFAULT_GRID = tuple(round(0.1 + 0.05 * i, 2) for i in range(13))  # 0.10 ... 0.70
-
-
-def kept_masks(record: Record, thresholds: np.ndarray, min_sides: np.ndarray) -> np.ndarray:
-    """``deepword.inference.runtime.kept_mask`` at many operating points at once: (P, boxes) for per-class
-    ``thresholds`` and ``min_sides`` of shape (P, classes); row p equals ``kept_mask(record, thresholds[p],
-    min_sides[p])``."""
-    classes = record.class_ids.astype(int)
-    xyxy = record.xyxy
-    shorter = np.minimum(xyxy[:, 2] - xyxy[:, 0], xyxy[:, 3] - xyxy[:, 1])
-    thresholds, min_sides = np.asarray(thresholds, dtype=np.float64), np.asarray(min_sides, dtype=np.float64)
-    return (record.scores[None, :] >= thresholds[:, classes]) & (shorter[None, :] >= min_sides[:, classes])
 
 
 def distinct_rows(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,8 +160,8 @@ class SubsetScores:
         """``CRITERION`` (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
         call, in the order the points first keep them (point by point, image by image), so that it can batch them
         however it likes. Each image's masks at all points are one array operation, and a point's counts are one row
-        of a sum over images: the loop over points x images it replaces took 7.85 s where this takes 0.21 on the
-        export config's grid (``benchmarks/bench_operating_point.py``)."""
+        of a sum over images: the loop over points x images it replaces took 37-39x as long on the export
+        config's grid (``benchmarks/bench_operating_point.py``)."""
         if not points:
             return []
         thresholds = np.array([p.thresholds for p in points], dtype=np.float64)   # (P, classes)

@@ -75,9 +75,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     train_x, train_y = split_crops(ds.subset("train"), ds.root, size, margin, float(tc.box_jitter), rng,
                                    tc.get("limit_train_images"))
     val_x, val_y = split_crops(ds.subset("val"), ds.root, size, margin, 0.0, None)
-    convs = [int(n) for n in fc.get("convs") or [2] * len(fc.widths)]   # absent: two a block (older configs)
+    convs = fc.get("convs")   # absent (older configs): FacingNet's two a block
     settings = {"input_size": size, "margin": margin, "widths": list(fc.widths), "hidden": int(fc.hidden),
-                "convs": convs}
+                "convs": None if convs is None else [int(n) for n in convs]}
     if len(train_x) == 0 or len(val_x) == 0:
         reason = (f"no vehicles with 3D truth (calibration and objects_3d) to learn from: {len(train_x)} train, "
                   f"{len(val_x)} val crops")
@@ -89,7 +89,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     device = torch.device("cuda" if trains_on_gpu(cfg.trainer.accelerator) else "cpu")
     bf16 = resolve_precision(str(cfg.trainer.precision), cfg.trainer.accelerator).startswith("bf16")
     torch.manual_seed(seed)
-    net = FacingNet(tuple(int(w) for w in fc.widths), int(fc.hidden), tuple(convs))
+    net = FacingNet(tuple(int(w) for w in fc.widths), int(fc.hidden), settings["convs"])
     channels_last = use_channels_last(bool(tc.channels_last), net, bf16, device.type == "cuda", "the facing network")
     layout = torch.channels_last if channels_last else torch.contiguous_format
     net = net.to(device).to(memory_format=layout)
@@ -194,7 +194,7 @@ def load_network(stage_dir: str | Path):
     meta = json.loads((stage_dir / CONFIG_FILE).read_text())
     if not meta.get("trained"):
         return None, meta
-    net = FacingNet(tuple(meta["widths"]), int(meta["hidden"]), meta.get("convs"))  # older: two per block
+    net = FacingNet(tuple(meta["widths"]), int(meta["hidden"]), meta.get("convs"))  # None: two a block
     net.load_state_dict(torch.load(stage_dir / WEIGHTS_FILE, map_location="cpu", weights_only=True))
     return net.eval(), meta
 

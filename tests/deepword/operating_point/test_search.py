@@ -114,8 +114,7 @@ def test_subset_relation_runs_each_distinct_subset_once():
 
 
 def test_masks_at_many_points_are_each_points_own_mask():
-    from deepword.inference.runtime import kept_mask
-    from deepword.operating_point.search import kept_masks
+    from deepword.inference.runtime import kept_mask, kept_masks
 
     points = [OperatingPoint(t, m) for t in itertools.product([0.1, 0.3, 0.5, 0.9], repeat=2)
               for m in itertools.product([0.0, 30.0], [0.0, 8.0, 25.0])]
