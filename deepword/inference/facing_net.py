@@ -2,9 +2,8 @@
 the exported network in onnxruntime (``OnnxFacing``), which writes each vehicle's vector into a record for the
 footprints' heading vote (``deepword.facing``; docs/bev.md, "Front and back").
 
-A crop squeezes its box (grown by a margin) to a square, so a direction in the crop is not the same direction in the
-image: the network learns and answers in crop pixels (``to_crop``), and its answers are turned back into image pixels
-(``to_image``) with their length, the network's certainty, kept.
+The network learns and answers in crop pixels; ``deepword.facing.to_image`` turns its answers back into image pixels
+(``to_crop``, the other way, is what the facing stage trains on).
 """
 
 from __future__ import annotations
@@ -16,34 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.facing import with_facing
+from deepword.facing import to_image, with_facing
 from deepword.footprint import FACING_SCALE_KEY
 from deepword.relation_graph import crop_objects
 from deepword.word_format import VEHICLE, Record
 
 FACING_FILE = "facing.onnx"
 FACING_INPUT, FACING_OUTPUT = "crops", "facing"
-
-
-def grown_sizes(xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """(N, 2) width and height of each box grown by ``margin`` x its size on each side: what its crop squeezes."""
-    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
-    wh = np.maximum(xyxy[:, 2:] - xyxy[:, :2], 1e-6)
-    return wh * (1 + 2 * margin)
-
-
-def to_crop(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """Image directions (N, 2) of the boxes ``xyxy`` as unit directions in their square crops."""
-    v = np.asarray(vectors, dtype=np.float64) / grown_sizes(xyxy, margin)
-    return (v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-
-
-def to_image(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """Crop vectors (N, 2) as image vectors: the image direction, the crop vector's length."""
-    v = np.asarray(vectors, dtype=np.float64)
-    d = v * grown_sizes(xyxy, margin)
-    d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-    return (d * np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
 
 
 def vehicle_crops(rgb: np.ndarray, rec: Record, size: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
