@@ -51,32 +51,6 @@ def image_facing(cam, x: float, y: float, yaw: float, length: float) -> np.ndarr
     return d / span
 
 
-# A crop squeezes its box (grown by a margin on each side) to a square, so a direction in the crop is not the same
-# direction in the image: the facing network learns and answers in crop pixels. Here, not beside the network's
-# runtime (deepword/inference/facing_net.py), so that the facing stage, which trains on ``to_crop``, does not depend
-# on the footprints and the inference runtime: an edit there would retrain the network.
-
-def grown_sizes(xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """(N, 2) width and height of each box grown by ``margin`` x its size on each side: what its crop squeezes."""
-    xyxy = np.asarray(xyxy, dtype=np.float64).reshape(-1, 4)
-    wh = np.maximum(xyxy[:, 2:] - xyxy[:, :2], 1e-6)
-    return wh * (1 + 2 * margin)
-
-
-def to_crop(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """Image directions (N, 2) of the boxes ``xyxy`` as unit directions in their square crops."""
-    v = np.asarray(vectors, dtype=np.float64) / grown_sizes(xyxy, margin)
-    return (v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-
-
-def to_image(vectors: np.ndarray, xyxy: np.ndarray, margin: float) -> np.ndarray:
-    """Crop vectors (N, 2) as image vectors: the image direction, the crop vector's length."""
-    v = np.asarray(vectors, dtype=np.float64)
-    d = v * grown_sizes(xyxy, margin)
-    d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-    return (d * np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
-
-
 def record_facing(record) -> dict[int, list[float]]:
     """A record's facing vectors ({vehicle box_id: [dx, dy]}); empty where no network wrote any."""
     return {int(k): v for k, v in (record.extra.get(FACING_KEY) or {}).items()}

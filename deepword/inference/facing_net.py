@@ -2,8 +2,8 @@
 the exported network in onnxruntime (``OnnxFacing``), which writes each vehicle's vector into a record for the
 footprints' heading vote (``deepword.facing``; docs/bev.md, "Front and back").
 
-The network learns and answers in crop pixels; ``deepword.facing.to_image`` turns its answers back into image pixels
-(``to_crop``, the other way, is what the facing stage trains on).
+The network learns and answers in crop pixels; ``deepword.facing_crop.to_image`` turns its answers back into image
+pixels (``to_crop``, the other way, is what the facing stage trains on).
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.facing import to_image, with_facing
+from deepword.facing import with_facing
+from deepword.facing_crop import to_image
 from deepword.footprint import FACING_SCALE_KEY
 from deepword.relation_graph import crop_objects
 from deepword.word_format import VEHICLE, Record

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.facing import box_facings, to_crop
+from deepword.facing import box_facings
+from deepword.facing_crop import to_crop
 from deepword.relation_graph import crop_objects
 from deepword.word_format import load_image, open_dataset
 from stages.training.lightning_logs import format_duration

@@ -15,7 +15,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from deepword.facing import box_facings, record_facing, record_facing_accuracy, to_crop, to_image
+from deepword.facing import box_facings, record_facing, record_facing_accuracy
+from deepword.facing_crop import to_crop, to_image
 from deepword.inference.facing_net import OnnxFacing, vehicle_crops
 from deepword.word_format import difficulty_subsets, write_dataset_index, write_records
 from stages.facing.model import FacingNet, facing_loss
