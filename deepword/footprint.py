@@ -32,11 +32,13 @@ prior's (``heading_vote``).
 
 **Confidence** (what the detection AP ranks estimates by): ``EVIDENCE_CONFIDENCE`` of the evidence (an ordinal
 scale: more wheels, more trust) x the vehicle box's score x the mean score of the wheel boxes used (the
-detector's scores on detected boxes, 1 on ground-truth boxes).
+detector's scores on detected boxes, 1 on ground-truth boxes); a no-wheel estimate's also x ``fit_trust`` of its
+silhouette fit's cost.
 
 ``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
 one vehicle (seen by two cameras); its footprint is the mean of its strongest estimates, its heading turned
-the way its strongest directed estimates point, its confidence the highest of its estimates'.
+the way its strongest directed estimates point, its confidence the highest of its estimates', less the share of it
+that more confident footprints cover (``suppress_overlaps``: vehicles do not overlap on the ground).
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+from shapely.geometry import Polygon
 
 from deepword.cameras import BOX_TO_IMAGE, Camera
 from deepword.facing import image_facing, record_facing, record_facing_accuracy
@@ -58,6 +61,11 @@ from deepword.word_format import VEHICLE, WHEEL, Record
 EVIDENCE = ("sides", "side", "axle", "wheel", "box")
 EVIDENCE_CONFIDENCE = {"sides": 1.0, "side": 0.9, "axle": 0.7, "wheel": 0.5, "box": 0.3}
 EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # wheels the evidence rests on (cap 2)
+# A no-wheel estimate's confidence falls with its silhouette fit's cost (``fit_trust``): exp(-cost / FIT_COST_SCALE).
+# Its position rests on the vehicle box alone, and a box the prior-shaped vehicle cannot fit (cut by the image's
+# edge, hidden in part, a long or odd body) places it worst. Chosen on the train and val splits (docs/bev.md,
+# "Confidence"); the scale only orders no-wheel estimates among themselves and against the detector's scores.
+FIT_COST_SCALE = 0.1
 
 
 @dataclass(frozen=True)
@@ -110,7 +118,8 @@ class Estimate:
     camera: str
     vehicle_box_id: int
     image: str
-    confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score
+    confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score (x fit_trust
+    #                          for a no-wheel estimate); after fusion x what suppress_overlaps leaves
     role_vote: float = 0.0   # log-odds, from the wheels' roles, that ``box.yaw`` points to the front (0: no roles)
     facing_vote: float = 0.0  # log-odds, from a network's facing vector, that ``box.yaw`` points to the front
 
@@ -519,7 +528,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
         vbox = by_id[vid]
         wheels = [w for w, v in owner.items() if v == vid and w in contacts]
         own_couples = [(a, b) for a, b in couples if owner.get(a) == vid and owner.get(b) == vid]
-        box, evidence, vote, used = None, "box", 0.0, []
+        box, evidence, vote, used, fit_cost = None, "box", 0.0, [], None
         if len(own_couples) >= 2:
             ordered = [_ordered(a, b, roles, (a, b) in couple_order) for a, b in own_couples[:2]]
             sides = [_side_box(cam, contacts[a], contacts[b], prior, far_side=False) for a, b, _ in ordered]
@@ -563,12 +572,14 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             start = box_bottom_estimate(cam, vbox, prior)
             box, evidence, vote, used = start, "box", 0.0, []
             if start is not None and use_relations:
-                box, _ = fit_sized(fit_free, cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
+                box, fit_cost = fit_sized(fit_free, cam, vbox, prior, start, context_axes(context, (start.x, start.y)))
         if box is not None:
             box = replace(box, height=prior.height * (box.length / prior.length if evidence in ("wheel", "box") else 1.0))
             conf = EVIDENCE_CONFIDENCE[evidence] * float(vbox[4])
             if used:
                 conf *= float(np.mean([by_id[w][4] for w in used]))
+            if evidence == "box" and fit_cost is not None:
+                conf *= fit_trust(fit_cost)
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
                                 confidence=conf, role_vote=vote,
                                 facing_vote=facing_vote(cam, box, facings.get(vid), facing_acc, facing_scale)))
@@ -742,7 +753,7 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
         if heading_vote(box, g, prior) < 0:
             box = _flip(box)
         fused.append((box, g))
-    return fused
+    return suppress_overlaps(fused)
 
 
 def frame_footprints(views: list[tuple[Record, Camera]], prior: FootprintPrior, radius_m: float,
@@ -773,6 +784,33 @@ def write_footprints(path, fused: dict[int, list[tuple[Box3D, list[Estimate]]]])
         for frame in sorted(fused):
             fh.write(json.dumps({"frame_id": frame, "footprints": [footprint_json(box, group)
                                                                    for box, group in fused[frame]]}) + "\n")
+
+
+def fit_trust(cost: float) -> float:
+    """The factor (0-1] a no-wheel estimate's confidence takes from its silhouette fit's cost (``FIT_COST_SCALE``)."""
+    return math.exp(-max(0.0, float(cost)) / FIT_COST_SCALE)
+
+
+def suppress_overlaps(fused: list[tuple[Box3D, list[Estimate]]]) -> list[tuple[Box3D, list[Estimate]]]:
+    """Soft suppression of a frame's footprints (the linear Soft-NMS of Bodla et al., 2017, on the ground): two
+    vehicles do not overlap on the ground, so a footprint that overlaps a more confident one is more likely a second
+    estimate of the same vehicle than another vehicle (an end-on or hidden vehicle's estimate from another camera, off by
+    more than the fusion radius). In falling confidence, each footprint's estimates' confidences are multiplied by
+    1 - the share of its area that each more confident footprint covers. Nothing is removed, so a vehicle that another
+    estimate overlaps by mistake keeps its footprint, further down the ranking."""
+    order = sorted(range(len(fused)), key=lambda i: -group_confidence(fused[i][1]))
+    shapes = [Polygon(box.corners()) for box, _ in fused]
+    out = list(fused)
+    for k, i in enumerate(order):
+        keep = 1.0
+        for j in order[:k]:
+            smaller = min(shapes[i].area, shapes[j].area)
+            if smaller > 0:
+                keep *= 1.0 - min(1.0, shapes[i].intersection(shapes[j]).area / smaller)
+        if keep < 1.0:
+            box, group = out[i]
+            out[i] = (box, [replace(e, confidence=e.confidence * keep) for e in group])
+    return out
 
 
 def group_confidence(group: list[Estimate]) -> float:

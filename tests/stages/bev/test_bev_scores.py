@@ -9,11 +9,14 @@ import pytest
 from omegaconf import OmegaConf
 
 from deepword.footprint import (
+    FIT_COST_SCALE,
     ROLE_WHEEL_LOGIT,
     Estimate,
+    fit_trust,
     footprints_from_contacts,
     fuse_frame,
     group_confidence,
+    suppress_overlaps,
 )
 from deepword.format_3d import Box3D
 from stages.bev.metrics import (
@@ -121,13 +124,42 @@ def test_confidence_follows_evidence_and_box_scores_and_fusion_keeps_the_directi
     est = footprints_from_contacts(rec, cam, PRIOR, {2: c["rr"], 3: c["fr"]})
     side, box = est
     assert (side.evidence, box.evidence) == ("side", "box")
-    assert side.confidence == pytest.approx(0.9 * 0.8 * 0.6) and box.confidence == pytest.approx(0.3)
+    assert side.confidence == pytest.approx(0.9 * 0.8 * 0.6)
+    assert 0 < box.confidence < 0.3   # 0.3 x its box score 1 x how well its silhouette fits the box (fit_trust)
     # an undirected estimate of the same vehicle turned backwards, fused with a weaker directed one: the front wins
     back = Estimate(Box3D(v.x, v.y, 4.5, 1.8, v.yaw + math.pi), "sides", "front", 0, "a.png", 0.95)
     wheel = Estimate(Box3D(v.x + 0.2, v.y, 4.5, 1.8, v.yaw + 0.1), "wheel", "left", 0, "b.png", 0.5,
                      role_vote=ROLE_WHEEL_LOGIT)
     (fused, group), = fuse_frame([wheel, back], 1.5)
     assert abs(math.remainder(fused.yaw - v.yaw, 2 * math.pi)) < 1e-9 and group_confidence(group) == 0.95
+
+
+def test_fit_trust_falls_with_the_fit_cost():
+    costs = [0.0, 0.01, 0.1, 1.0]
+    trust = [fit_trust(c) for c in costs]
+    assert trust[0] == 1.0 and all(a > b > 0 for a, b in zip(trust[:-1], trust[1:], strict=True))
+    assert fit_trust(FIT_COST_SCALE) == pytest.approx(math.exp(-1))
+
+
+def test_overlapping_footprints_keep_the_uncovered_share_of_their_confidence():
+    """Two vehicles do not overlap on the ground: a footprint half under a more confident one keeps half its
+    confidence, one a quarter under each of two keeps 3/4 x 3/4, one clear of the others all of it; the most confident
+    keeps its own whatever lies under it, and nothing is removed."""
+    def est(x, y, conf, length=4.0):
+        return Estimate(Box3D(x, y, length, 2.0, 0.0), "box", "front", 0, "a.png", conf)
+
+    strong = (est(0.0, 0.0, 0.9).box, [est(0.0, 0.0, 0.9), est(0.1, 0.0, 0.5)])
+    half = (est(2.0, 0.0, 0.3).box, [est(2.0, 0.0, 0.3)])            # its rear half under `strong`
+    clear = (est(0.0, 5.0, 0.4).box, [est(0.0, 5.0, 0.4)])
+    out = suppress_overlaps([half, strong, clear])
+    assert [len(g) for _, g in out] == [1, 2, 1] and [b for b, _ in out] == [half[0], strong[0], clear[0]]
+    assert group_confidence(out[1][1]) == 0.9 and group_confidence(out[2][1]) == 0.4
+    assert group_confidence(out[0][1]) == pytest.approx(0.3 * 0.5)
+    left, right = (est(-3.0, 0.0, 0.8).box, [est(-3.0, 0.0, 0.8)]), (est(3.0, 0.0, 0.7).box, [est(3.0, 0.0, 0.7)])
+    middle = (est(0.0, 0.0, 0.2).box, [est(0.0, 0.0, 0.2)])          # a quarter under each neighbour
+    out = suppress_overlaps([left, middle, right])
+    assert group_confidence(out[1][1]) == pytest.approx(0.2 * 0.75 * 0.75)
+    assert [group_confidence(g) for _, g in suppress_overlaps([clear])] == [0.4]
 
 
 def test_subsets_bins_and_populations():
