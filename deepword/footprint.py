@@ -734,7 +734,8 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
     the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
     (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
-    leading estimate points."""
+    leading estimate points; the groups' estimates' confidences then lowered where footprints overlap
+    (``suppress_overlaps``)."""
     def nearness(e: Estimate) -> float:
         return math.hypot(e.box.x, e.box.y)
 
