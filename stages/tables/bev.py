@@ -21,7 +21,8 @@ SCORES = (("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("ase", "ASE"), ("aoe_deg", "A
 PAIRED = ("paired", "center_err_m", "median centre error, two same-side wheels (m)")
 SUBSETS = {"all": "all within range", "two_wheels": "two wheels", "one_wheel": "one wheel", "no_wheel": "no wheel",
            "0-5m": "0–5 m", "5-10m": "5–10 m", "10-20m": "10–20 m"}
-SUBSET_SCORES = (("vehicles", "vehicles"), ("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("aoe_deg", "AOE 360° (°)"),
+SUBSET_SCORES = (("vehicles", "vehicles"), ("ap", "AP (%)"), ("ate_m", "ATE (m)"),
+                 ("center_err_median_m", "median centre error (m)"), ("aoe_deg", "AOE 360° (°)"),
                  ("recall", "recall (%)"), ("precision", "precision (%)"))
 NEEDED = "bev.gt.deepword.all.ap"
 

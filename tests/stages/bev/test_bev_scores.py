@@ -75,6 +75,13 @@ def test_ap_per_threshold_follows_the_centre_distance():
     s = detection_scores(frames, *ALL)
     assert (s["ap_0p5m"], s["ap_1m"], s["ap_2m"], s["ap_4m"]) == (0, 0, pytest.approx(100), pytest.approx(100))
     assert s["ap"] == pytest.approx(50) and s["ate_m"] == pytest.approx(1.5)
+    # three matches 0.1, 0.2 and 1.5 m off, ranked best first: the median is the middle one, the ATE (the running
+    # mean read at the recall levels) leans towards the first
+    u, v = _car(-6.0, 3.0), _car(0.0, -7.0)
+    frames = [([TrueVehicle(t), TrueVehicle(u), TrueVehicle(v)],
+               [Scored(_car(6.1, 2.0), 0.9), Scored(_car(-6.0, 3.2), 0.8), Scored(_car(0.0, -5.5), 0.7)])]
+    s = detection_scores(frames, *ALL)
+    assert s["center_err_median_m"] == pytest.approx(0.2) and s["ate_m"] < (0.1 + 0.2 + 1.5) / 3
 
 
 def test_headings_over_360_deg_tell_front_from_back_and_modulo_180_do_not():
