@@ -1,8 +1,8 @@
 """Top-view figures in the style of the paper's Fig. 1: the ego car (the outline of its camera rig, its nose
 forward) with range rings around the vehicle frame's origin, true footprints (green), estimated footprints
-coloured by the camera whose estimate leads them (thicker where two or more cameras saw the vehicle), each with
-an arrow to its front where a vote (wheel roles, a facing vector) gave the direction or a bare axis line where none
-did, wheel contact points (black dots), and a legend."""
+coloured by the camera whose estimate leads them (thicker where two or more cameras saw the vehicle; paler the
+lower their confidence, ``faded``), each with an arrow to its front where a vote (wheel roles, a facing vector) gave
+the direction or a bare axis line where none did, wheel contact points (black dots), and a legend."""
 
 from __future__ import annotations
 
@@ -19,8 +19,22 @@ WHEEL_RGB = (0, 0, 0)
 GRID_RGB = (215, 215, 215)
 TEXT_RGB = (60, 60, 60)
 TITLE_PX = 24
-LEGEND_PX = 40
+LEGEND_PX = 56
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+# Footprints at or above this confidence are drawn in their full colour; below it paler, down to FADED_SHARE of it
+# at confidence 0 (a footprint mostly under a more confident one, deepword.footprint.suppress_overlaps, or a no-wheel
+# fit that explains its box badly), so the view shows what the AP ranks last. A well-fitted no-wheel estimate on a
+# labelled box (0.3 x its fit) stays at full colour.
+FULL_CONFIDENCE = 0.2
+FADED_SHARE = 0.3
+
+
+def faded(colour: tuple[int, int, int], confidence: float | None) -> tuple[int, int, int]:
+    """``colour`` mixed with white by how far ``confidence`` lies under FULL_CONFIDENCE (None: unchanged)."""
+    if confidence is None:
+        return colour
+    share = FADED_SHARE + (1 - FADED_SHARE) * min(1.0, max(0.0, float(confidence)) / FULL_CONFIDENCE)
+    return tuple(int(round(255 - (255 - c) * share)) for c in colour)
 
 
 def camera_colour(name: str | None) -> tuple[int, int, int]:
@@ -30,10 +44,11 @@ def camera_colour(name: str | None) -> tuple[int, int, int]:
 def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, rig_xy: np.ndarray,
              title: str, half_extent_m: float = 14.0, size_px: int = 420, cameras: list | None = None,
              directed: list[bool] | None = None, seen_by: list[int] | None = None,
-             legend: bool = True) -> np.ndarray:
+             legend: bool = True, confidence: list[float] | None = None) -> np.ndarray:
     """An RGB top view centred on the ego's rig: x forward is up, y left is left. ``cameras``: per estimate the
     camera (name) whose estimate leads it (its colour); ``directed``: per estimate whether its heading points to
-    the front (an arrow) or only the axis is known (a line); ``seen_by``: per estimate how many cameras saw it."""
+    the front (an arrow) or only the axis is known (a line); ``seen_by``: per estimate how many cameras saw it;
+    ``confidence``: per estimate its confidence (``faded``)."""
     legend_px = LEGEND_PX if legend else 0
     img = np.full((TITLE_PX + size_px + legend_px, size_px, 3), 255, np.uint8)
     scale = size_px / (2 * half_extent_m)
@@ -71,7 +86,7 @@ def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, r
         tip = px([b.x + np.cos(b.yaw) * b.length / 2, b.y + np.sin(b.yaw) * b.length / 2])[0]
         cv2.circle(img, (int(tip[0]), int(tip[1])), 3, TRUE_RGB, -1, cv2.LINE_AA)   # the true front
     for i, b in enumerate(estimates):
-        colour = camera_colour(cameras[i] if cameras else None)
+        colour = faded(camera_colour(cameras[i] if cameras else None), confidence[i] if confidence else None)
         thick = 2 if seen_by and seen_by[i] > 1 else 1
         poly(b.corners(), colour, thick)
         axis = np.array([np.cos(b.yaw), np.sin(b.yaw)]) * b.length / 2
@@ -91,7 +106,8 @@ def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, r
 
 
 def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool = True) -> None:
-    """Two legend rows under a top view: truth / ego / contacts / arrow-vs-line, then the cameras' colours."""
+    """Three legend rows under a top view: truth / ego / contacts / arrow-vs-line, the cameras' colours, and what a
+    paler footprint means."""
     cv2.line(img, (0, top), (img.shape[1], top), GRID_RGB, 1)
     x, y = 6, top + 14
 
@@ -112,6 +128,9 @@ def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool 
     x += cv2.getTextSize("estimates by camera:", FONT, 0.33, 1)[0][0] + 8
     for name in camera_names:
         x = entry(x, name, lambda x, n=name: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), camera_colour(n), 1))
+    x, y = 6, top + 46
+    entry(x, "paler: lower confidence (under a more confident footprint, or a poor fit)",
+          lambda x: cv2.rectangle(img, (x, y - 4), (x + 12, y + 4), faded(TEXT_RGB, 0.0), 1))
 
 
 def panel_grid(panels: list[np.ndarray], columns: int = 4) -> np.ndarray:

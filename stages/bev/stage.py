@@ -425,7 +425,8 @@ def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dic
                                    f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m),
                                    cameras=[g[0].camera for _, g in groups],
                                    directed=[group_directed(g) for _, g in groups],
-                                   seen_by=[len({e.camera for e in g}) for _, g in groups]))
+                                   seen_by=[len({e.camera for e in g}) for _, g in groups],
+                                   confidence=[group_confidence(g) for _, g in groups]))
         path = artifacts / f"{prefix}top_view_{f:06d}.png"
         cv2.imwrite(str(path), cv2.cvtColor(panel_grid(panels), cv2.COLOR_RGB2BGR))
         paths.append(path)

@@ -10,7 +10,7 @@ import pytest
 from deepword.footprint import footprints_from_contacts, fuse_frame
 from deepword.format_3d import Box3D
 from deepword.inference.footprints import Frame, calibration_camera, frame_top_view, write_frame_views
-from deepword.top_view import CAMERA_RGB, LEGEND_PX, TITLE_PX, TRUE_RGB, top_view
+from deepword.top_view import CAMERA_RGB, FULL_CONFIDENCE, LEGEND_PX, TITLE_PX, TRUE_RGB, faded, top_view
 from stages.data.camera import nominal_camera
 from stages.inference.infer import InferError, add_footprints, parser
 from tests.stages.bev.test_bev import LEFT, PRIOR, _camera, _contacts, _record
@@ -51,6 +51,21 @@ def test_a_panel_has_truth_the_cameras_colours_and_a_legend():
     assert img.shape == (TITLE_PX + 420 + LEGEND_PX, 420, 3)
     assert _has(img, TRUE_RGB) and _has(img[: TITLE_PX + 420], CAMERA_RGB["left"])
     assert not _has(img[: TITLE_PX + 420], CAMERA_RGB["right"])   # no right-camera estimate drawn above the legend
+
+
+def test_a_low_confidence_footprint_is_drawn_pale():
+    v, _, views = _frame_views()
+    (cam, estimates, contacts) = views["images/left/000000.png"]
+    rig, view = np.array([[0.0, 0.0], [3.7, 0.0]]), slice(0, TITLE_PX + 420)
+
+    def drawn(confidence):
+        return top_view([], [e.box for e in estimates], contacts, rig, "t", cameras=["left"], directed=[True],
+                        seen_by=[1], confidence=confidence)[view]
+
+    assert _has(drawn([0.9]), CAMERA_RGB["left"]) and _has(drawn(None), CAMERA_RGB["left"])
+    pale = drawn([0.01])
+    assert not _has(pale, CAMERA_RGB["left"]) and _has(pale, faded(CAMERA_RGB["left"], 0.01))
+    assert faded((0, 0, 0), 0.0) == (178, 178, 178) and faded((10, 20, 30), FULL_CONFIDENCE) == (10, 20, 30)
 
 
 def test_one_instants_cameras_fuse_into_one_top_view(tmp_path):
