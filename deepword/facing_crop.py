@@ -4,9 +4,9 @@ in crop pixels: the facing stage trains on ``to_crop`` of each vehicle's image d
 the network's runtime (``deepword.inference.facing_net``) turns its answers back with ``to_image``, their length, the
 network's certainty, kept.
 
-A module of its own, numpy only: the facing stage imports it without the runtime (whose imports reach the footprints
-and the inference code, whose edits would then retrain the network) and without changing ``deepword.facing``, which
-the detector's and the evaluation's code versions include.
+A module of its own, numpy only, so that the facing stage's code version holds neither the network's runtime (whose
+imports reach the footprints and the inference code: their edits would retrain the network) nor more of
+``deepword.facing`` than the targets (that module is in the detector's and the evaluation's code versions too).
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from deepword.footprint import Estimate, group_confidence, group_directed
 from deepword.format_3d import Box3D
 
 TRUE_RGB = (40, 170, 60)
@@ -103,6 +104,17 @@ def top_view(truth: list[Box3D], estimates: list[Box3D], contacts: np.ndarray, r
         draw_legend(img, TITLE_PX + size_px, camera_names=[c for c in CAMERA_RGB if not cameras or c in cameras],
                     truth=bool(truth))
     return img
+
+
+def fused_top_view(truth: list[Box3D], fused: list[tuple[Box3D, list[Estimate]]], contacts: np.ndarray,
+                   rig_xy: np.ndarray, title: str, half_extent_m: float = 14.0, size_px: int = 420) -> np.ndarray:
+    """``top_view`` of fused footprints (``deepword.footprint.fuse_frame``'s (box, its estimates) pairs), each drawn
+    by its group: the leading estimate's camera, whether a vote gave its front, how many cameras saw it, its
+    confidence."""
+    return top_view(truth, [b for b, _ in fused], contacts, rig_xy, title, half_extent_m, size_px,
+                    cameras=[g[0].camera for _, g in fused], directed=[group_directed(g) for _, g in fused],
+                    seen_by=[len({e.camera for e in g}) for _, g in fused],
+                    confidence=[group_confidence(g) for _, g in fused])
 
 
 def draw_legend(img: np.ndarray, top: int, camera_names: list[str], truth: bool = True) -> None:

@@ -17,13 +17,11 @@ from deepword.footprint import (
     FootprintPrior,
     footprint_json,
     frame_footprints,
-    group_confidence,
-    group_directed,
     wheel_contacts,
     write_footprints,
 )
 from deepword.format_3d import Box3D, check_calibration
-from deepword.top_view import top_view
+from deepword.top_view import fused_top_view
 from deepword.word_format import CAMERAS, WHEEL, Record
 
 PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape statistics, heading table)
@@ -129,11 +127,8 @@ def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m
     h = overlay.shape[0]
     cam = next(c for p, c in frame.views if p.image == image)
     groups = frame.groups_of(image)
-    view = top_view([], [b for b, _ in groups], image_contacts(frame, image), cam.translation[None, :2],
-                    f"{len(groups)} footprints, camera {cam.name}", half_extent_m, size_px=max(h - 24, 64),
-                    cameras=[g[0].camera for _, g in groups], directed=[group_directed(g) for _, g in groups],
-                    seen_by=[len({e.camera for e in g}) for _, g in groups],
-                    confidence=[group_confidence(g) for _, g in groups])
+    view = fused_top_view([], groups, image_contacts(frame, image), cam.translation[None, :2],
+                          f"{len(groups)} footprints, camera {cam.name}", half_extent_m, size_px=max(h - 24, 64))
     if view.shape[0] != h:
         pad = np.full((h, view.shape[1], 3), 255, np.uint8)
         pad[: min(h, view.shape[0])] = view[:h]
@@ -170,11 +165,8 @@ def frame_top_view(frame: Frame, title: str, half_extent_m: float = 14.0, size_p
     rig = np.array([cam.translation[:2] for _, cam in frame.views])
     contacts = [image_contacts(frame, p.image) for p, _ in frame.views]
     fused = frame.fused
-    return top_view([], [b for b, _ in fused], np.concatenate(contacts) if contacts else np.zeros((0, 2)), rig,
-                    f"{title}: {len(fused)} vehicles, {len(frame.views)} cameras", half_extent_m, size_px,
-                    cameras=[g[0].camera for _, g in fused], directed=[group_directed(g) for _, g in fused],
-                    seen_by=[len({e.camera for e in g}) for _, g in fused],
-                    confidence=[group_confidence(g) for _, g in fused])
+    return fused_top_view([], fused, np.concatenate(contacts) if contacts else np.zeros((0, 2)), rig,
+                          f"{title}: {len(fused)} vehicles, {len(frame.views)} cameras", half_extent_m, size_px)
 
 
 def write_frame_views(out_dir: Path, frames: dict[int, Frame], shown: set[str] | None = None) -> list[Path]:

@@ -208,7 +208,8 @@ def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_
     (``keep_estimate``: by its own range and evidence) a false positive, and an estimate matched to a vehicle
     outside the subset counts for neither. AP in %, per threshold and their mean (``ap``); ATE (m), ASE, AOE over
     360 deg (rad and deg) and modulo 180 deg (deg) at TP_THRESHOLD, recall-averaged; ``iou`` the mean BEV IoU of the
-    matches at TP_THRESHOLD; ``center_err_median_m`` the median centre distance of those matches; ``recall`` and ``precision`` (%) of all estimates at TP_THRESHOLD."""
+    matches at TP_THRESHOLD; ``center_err_median_m`` the median centre distance of those matches; ``recall`` and
+    ``precision`` (%) of all estimates at TP_THRESHOLD."""
     n_true = sum(keep_truth(t) for truth, _ in frames for t in truth)
     out = {k: float("nan") for k in DETECTION_METRICS}
     out["vehicles"] = float(n_true)

@@ -43,14 +43,13 @@ from deepword.footprint import (
     FootprintPrior,
     fit_prior,
     group_confidence,
-    group_directed,
     group_wheels,
     wheel_contacts,
     write_footprints,
 )
 from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
 from deepword.inference.facing_net import OnnxFacing
-from deepword.top_view import panel_grid, top_view
+from deepword.top_view import fused_top_view, panel_grid, top_view
 from deepword.word_format import WHEEL, Dataset, Record, load_image, open_dataset, read_records
 from pipeline.outputs import StageInputs
 from stages.bev.fitting import frame_views, fused_footprints
@@ -420,13 +419,8 @@ def write_figures(artifacts: Path, test: list[Record], truth: dict, cameras: dic
         panels = [top_view(true_boxes, [], contacts, rig, f"frame {f}: truth ({len(true_boxes)} vehicles)",
                            float(bcfg.view_m))]
         for k in panels_of:
-            groups = fused_by[k][f]
-            panels.append(top_view(true_boxes, [b for b, _ in groups], contacts, rig,
-                                   f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m),
-                                   cameras=[g[0].camera for _, g in groups],
-                                   directed=[group_directed(g) for _, g in groups],
-                                   seen_by=[len({e.camera for e in g}) for _, g in groups],
-                                   confidence=[group_confidence(g) for _, g in groups]))
+            panels.append(fused_top_view(true_boxes, fused_by[k][f], contacts, rig,
+                                         f"frame {f}: {k[1]} ({k[0]} boxes)", float(bcfg.view_m)))
         path = artifacts / f"{prefix}top_view_{f:06d}.png"
         cv2.imwrite(str(path), cv2.cvtColor(panel_grid(panels), cv2.COLOR_RGB2BGR))
         paths.append(path)
