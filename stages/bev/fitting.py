@@ -17,6 +17,11 @@ from collections import defaultdict
 from deepword.footprint import FootprintPrior, frame_footprints, shared_fits
 from deepword.word_format import Record
 
+# A spawned process costs 2-3 s before it fits anything (importing NumPy, OpenCV and the project), about what it
+# takes to fit a few frames: fewer frames than this a process are fitted in the calling one (a smoke run's 3-4 test
+# frames: 6 s in two processes, under 3 s in one).
+MIN_FRAMES_PER_PROCESS = 8
+
 # (box source, method) -> ({frame: [(record, camera), ...]}, use_relations)
 Jobs = dict[tuple[str, str], tuple[dict[int, list], bool]]
 
@@ -39,13 +44,14 @@ def _fit_frames(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: 
 
 
 def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float,
-                     workers: int = 1) -> dict[tuple[str, str], dict[int, list]]:
+                     workers: int = 1, min_frames_per_process: int = MIN_FRAMES_PER_PROCESS
+                     ) -> dict[tuple[str, str], dict[int, list]]:
     """{job: {frame: [(footprint, its estimates), ...]}} for every job and every frame of ``frames`` (a frame none
-    of a job's views fall in gets none), keyed in the order of ``frames``; ``workers`` > 1: that many spawned
-    processes, each every ``workers``-th frame."""
+    of a job's views fall in gets none), keyed in the order of ``frames``; ``workers`` > 1: up to that many spawned
+    processes, each every ``workers``-th frame, as long as each gets ``min_frames_per_process`` frames."""
     started = time.perf_counter()
     order = sorted(frames)
-    workers = max(1, min(int(workers), len(order)))
+    workers = max(1, min(int(workers), len(order) // max(1, int(min_frames_per_process))))
     shards = [order[i::workers] for i in range(workers)]
     if workers == 1:
         parts = [_fit_frames(jobs, order, prior, radius_m)]

@@ -19,6 +19,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from pipeline.mlflow_ops import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG
+from pipeline.ui import NO_JOB_RUNNER
 from tests.ports import address_in_use, free_port
 from tests.sqlite_store import fresh_store, fresh_store_for_uri
 
@@ -139,7 +140,9 @@ class MlflowServer:
         if self.log is not None:
             self.log.close()
         self.log = (self.tmp / f"mlflow_{self.command}.log").open("w")
-        self.proc = subprocess.Popen(args, cwd=self.tmp, stdout=self.log, stderr=subprocess.STDOUT,
+        # as ``make ui`` starts it: without MLflow's job runner (six more processes importing MLflow)
+        env = {**os.environ, NO_JOB_RUNNER[0]: NO_JOB_RUNNER[1]}
+        self.proc = subprocess.Popen(args, cwd=self.tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT,
                                      start_new_session=True)
 
     def wait_ready(self, timeout: float = 120) -> None:

@@ -42,7 +42,7 @@ def test_silhouette_boxes_are_the_bbox_of_each_vehicles_projected_points():
     assert (boxes[:, 2] > boxes[:, 0]).any()
 
 
-def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path):
+def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path, capsys):
     cfg = {**OmegaConf.to_container(OmegaConf.load(CONF / "data" / "synword.yaml"), resolve=True), "frames": 3,
            "workers": 1}
     write_records(tmp_path / "labels.jsonl", generate(cfg, seed=5, out_dir=tmp_path, workers=1, progress=False))
@@ -54,7 +54,8 @@ def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path):
             ("gt", "nothing"): ({}, True)}
     frames = [2, 0, 1, 7]   # 7: a frame no view falls in
     one = fused_footprints(jobs, frames, PRIOR, 1.5, workers=1)
-    two = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2)
+    two = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2, min_frames_per_process=1)
+    assert "(2 processes)" in capsys.readouterr().out
     assert list(one) == list(jobs) and all(list(fused) == frames for fused in one.values())
     assert sum(len(f) for f in one[("gt", "deepword")].values()) >= 5
     assert one[("gt", "nothing")] == {f: [] for f in frames} and one[("gt", "deepword")][7] == []
@@ -62,3 +63,9 @@ def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path):
         for f in frames:
             assert [(box, [e.box for e in group]) for box, group in two[key][f]] == \
                    [(box, [e.box for e in group]) for box, group in one[key][f]], (key, f)
+
+
+def test_too_few_frames_for_a_process_each_are_fitted_in_this_one(capsys):
+    assert fused_footprints({("gt", "nothing"): ({}, True)}, list(range(15)), PRIOR, 1.5, workers=2) == \
+        {("gt", "nothing"): {f: [] for f in range(15)}}
+    assert "(1 process)" in capsys.readouterr().out
