@@ -21,7 +21,7 @@ from deepword.footprint import (
     write_footprints,
 )
 from deepword.format_3d import Box3D, check_calibration
-from deepword.top_view import fused_top_view
+from deepword.top_view import LEGEND_PX, TITLE_PX, fused_top_view
 from deepword.word_format import CAMERAS, WHEEL, Record
 
 PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape statistics, heading table)
@@ -122,18 +122,26 @@ def image_contacts(frame: Frame, image: str) -> np.ndarray:
 
 
 def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m: float = 12.0) -> np.ndarray:
-    """The overlay with a top view of its image's footprints (as fused over the frame) to its right, as tall as the
-    overlay."""
+    """The overlay with a top view of its image's footprints (as fused over the frame) to its right: title, map and
+    legend as tall as the overlay, the map at least ``BESIDE_MIN_PX`` wide (the legend's widest row needs 312 px), the
+    shorter of the two padded with white below."""
     h = overlay.shape[0]
     cam = next(c for p, c in frame.views if p.image == image)
     groups = frame.groups_of(image)
     view = fused_top_view([], groups, image_contacts(frame, image), cam.translation[None, :2],
-                          f"{len(groups)} footprints, camera {cam.name}", half_extent_m, size_px=max(h - 24, 64))
-    if view.shape[0] != h:
-        pad = np.full((h, view.shape[1], 3), 255, np.uint8)
-        pad[: min(h, view.shape[0])] = view[:h]
-        view = pad
-    return np.concatenate([overlay, view], axis=1)
+                          f"{len(groups)} footprints, camera {cam.name}", half_extent_m,
+                          size_px=max(h - TITLE_PX - LEGEND_PX, BESIDE_MIN_PX))
+    height = max(h, view.shape[0])
+    return np.concatenate([_white_below(overlay, height), _white_below(view, height)], axis=1)
+
+
+BESIDE_MIN_PX = 320
+
+
+def _white_below(img: np.ndarray, height: int) -> np.ndarray:
+    if img.shape[0] >= height:
+        return img
+    return np.concatenate([img, np.full((height - img.shape[0], *img.shape[1:]), 255, img.dtype)], axis=0)
 
 
 def camera_of(pred: Record, calibration: dict | None) -> Camera | None:

@@ -208,7 +208,10 @@ def test_infer_with_a_calibration_file_writes_footprints_and_a_top_view(exported
     vehicles = {int(b) for b, c in zip(pred.box_ids, pred.class_ids, strict=True) if c == 0}
     assert {int(k) for k, v in pred.extra["objects_3d"].items() if "center" in v} == vehicles
     overlay = cv2.imread(str(out / "overlays" / f"{image.stem}.png"))
-    assert overlay.shape[0] == 240 and overlay.shape[1] > 320 + 150  # the top view beside the overlay
+    # the top view beside the 320 x 240 overlay, its legend whole below the map: 24 px title + 320 px map + 56 px
+    # legend tall, the overlay padded with white below
+    assert overlay.shape == (400, 320 + 320, 3)
+    assert (overlay[240:, :320] == 255).all() and (overlay[-56:, 320:] < 128).any()
 
     bad = json.loads(image.with_suffix(".json").read_text())
     bad["intrinsic"]["width"] = 640
