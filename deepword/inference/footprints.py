@@ -121,6 +121,9 @@ def image_contacts(frame: Frame, image: str) -> np.ndarray:
     return xy[ok] if len(xy) else np.zeros((0, 2))
 
 
+BESIDE_MIN_PX = 320   # the narrowest map beside an overlay: the legend's widest row without truth needs 312 px
+
+
 def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m: float = 12.0) -> np.ndarray:
     """The overlay with a top view of its image's footprints (as fused over the frame) to its right: title, map and
     legend as tall as the overlay, the map at least ``BESIDE_MIN_PX`` wide (the legend's widest row needs 312 px), the
@@ -133,9 +136,6 @@ def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m
                           size_px=max(h - TITLE_PX - LEGEND_PX, BESIDE_MIN_PX))
     height = max(h, view.shape[0])
     return np.concatenate([_white_below(overlay, height), _white_below(view, height)], axis=1)
-
-
-BESIDE_MIN_PX = 320
 
 
 def _white_below(img: np.ndarray, height: int) -> np.ndarray:
