@@ -688,6 +688,36 @@ def heading_vote(box: Box3D, group: list[Estimate], prior: FootprintPrior | None
                 for e in group if e.directed)
     return votes + heading_prior_logit(prior, box)
 
+
+def camera_agreement(fused: list[tuple[Box3D, list[Estimate]]]) -> tuple[int, int]:
+    """(pairs, agreeing) over the fused vehicles whose facing was voted from two or more cameras: each pair of those
+    cameras, and how many pairs point the vehicle the same way (a camera's votes summed, each turned to the vehicle's
+    axis). A check of the facing network that needs no labels: if it is right for a share p of vehicles, independently
+    per camera, two cameras agree with probability p^2 + (1 - p)^2 (``implied_accuracy``)."""
+    pairs = agreeing = 0
+    for box, group in fused:
+        per_camera: dict[str, float] = {}
+        for e in group:
+            if e.facing_vote != 0.0:
+                turned = e.facing_vote * math.copysign(1.0, math.cos(e.box.yaw - box.yaw))
+                per_camera[e.camera] = per_camera.get(e.camera, 0.0) + turned
+        votes = [v for v in per_camera.values() if v != 0.0]
+        for i, a in enumerate(votes):
+            for b in votes[i + 1:]:
+                pairs += 1
+                agreeing += (a > 0) == (b > 0)
+    return pairs, agreeing
+
+
+def implied_accuracy(pairs: int, agreeing: int) -> float | None:
+    """The facing network's accuracy (0.5-1) that would make ``agreeing`` of ``pairs`` cameras agree
+    (``camera_agreement``); 0.5 where they agree half the time or less, None without pairs. Errors of two cameras
+    on one vehicle go together more often than independence says, so it reads a few points high: on the quick run's
+    labelled test boxes 0.90 in domain (3D truth: 0.87), 0.73 on the held-out domain (0.69)."""
+    if pairs == 0:
+        return None
+    return 0.5 + 0.5 * math.sqrt(max(2.0 * agreeing / pairs - 1.0, 0.0))
+
 # --- a frame's cameras ----------------------------------------------------------------------------------
 
 CONTEXT_EVIDENCE = ("sides", "side")   # the footprints whose axes the weak estimates of their frame may take

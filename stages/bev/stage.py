@@ -13,7 +13,9 @@ MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.det
 ``all``, ``two_wheels``, ``one_wheel``, ``no_wheel`` (within ``bev.max_range_m``) and the ``<lo>-<hi>m`` distance
 bins; where the boxes carry facing vectors (the bundle's facing network, which the stage runs on every vehicle box:
 ``deepword.inference.facing_net.OnnxFacing``; else a detector's facing head) ``bev.<boxes>.facing.{acc,vehicles}``
-(``metrics.facing_agreement``: how often they point the right way on the matched test vehicles); and the paired
+(``metrics.facing_agreement``: how often they point the right way on the matched test vehicles) and
+``bev.<boxes>.facing.{camera_pairs,camera_agreement,implied_acc}`` (the same without labels:
+``deepword.footprint.camera_agreement``); and the paired
 medians as ``bev.<boxes>.<method>.<metric>``
 (matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
@@ -41,9 +43,11 @@ import numpy as np
 
 from deepword.footprint import (
     FootprintPrior,
+    camera_agreement,
     fit_prior,
     group_confidence,
     group_wheels,
+    implied_accuracy,
     wheel_contacts,
     write_footprints,
 )
@@ -216,7 +220,7 @@ class Domain:
                 "facing": self.facing}
 
     def metrics(self, root: str) -> dict[str, float]:
-        """``flatten``'s keys and ``<root>.<boxes>.facing.{acc,vehicles}``."""
+        """``flatten``'s keys and ``<root>.<boxes>.facing.<key>`` (``facing_agreement``'s and the cameras' agreement)."""
         out = flatten(self.results, self.detection, root)
         for boxes, score in self.facing.items():
             out |= {f"{root}.{boxes}.facing.{k}": float(v) for k, v in score.items()}
@@ -260,7 +264,13 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
         results[boxes] = {}
         agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
         if agreement is not None:
-            facing[boxes] = agreement
+            # and the label-free check a new camera's frames allow: do two cameras' votes on one vehicle agree?
+            voted = fused_by[(boxes, "deepword" if "deepword" in methods else methods[0])]
+            pairs, agreeing = camera_agreement([g for f in voted.values() for g in f])
+            implied = implied_accuracy(pairs, agreeing)
+            facing[boxes] = {**agreement, "camera_pairs": float(pairs),
+                             **({} if implied is None else {"camera_agreement": 100.0 * agreeing / pairs,
+                                                            "implied_acc": 100.0 * implied})}
         for method in [BASELINE, *methods]:
             fused = fused_by[(boxes, method)]
             matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
@@ -358,8 +368,14 @@ def render_medians(report: dict, part: dict, domain: str = "") -> list[str]:
 
 
 def render_facing(facing: dict, domain: str = "") -> list[str]:
+    def agreement(v: dict) -> str:
+        if "implied_acc" not in v:
+            return ""
+        return (f"; without labels, two cameras' votes agree on {v['camera_agreement']:.1f} % of "
+                f"{int(v['camera_pairs'])} camera pairs, as a network right for {v['implied_acc']:.1f} % would")
     return [f"- {domain}{boxes} boxes: the facing vectors point within 90 deg of the true facing for "
-            f"{v['acc']:.1f} % of the {int(v['vehicles'])} matched vehicles with 3D truth" for boxes, v in facing.items()]
+            f"{v['acc']:.1f} % of the {int(v['vehicles'])} matched vehicles with 3D truth{agreement(v)}"
+            for boxes, v in facing.items()]
 
 
 def render_report(report: dict, bcfg) -> str:

@@ -49,6 +49,7 @@ from deepword.inference.footprints import (
     calibration_camera,
     camera_of,
     estimate_frames,
+    facing_check,
     load_fuse_radius,
     load_prior,
     read_calibration_file,
@@ -214,6 +215,9 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> 
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
         preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p for p in preds]
     frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir))
+    check = facing_check(frames, facing_net.accuracy) if facing_net is not None else None
+    if check is not None:
+        print(check, file=sys.stderr)
     return [with_objects_3d(p, frames[p.frame_id]) if p.image in cams else p for p in preds], frames
 
 
