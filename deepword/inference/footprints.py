@@ -13,12 +13,16 @@ import numpy as np
 
 from deepword.cameras import Camera, camera_from_calibration
 from deepword.footprint import (
+    MIN_CAMERA_PAIRS,
     Estimate,
     FootprintPrior,
     camera_agreement,
+    facing_trust,
     footprint_json,
     frame_footprints,
+    fuse_frame,
     implied_accuracy,
+    weigh_facing,
     wheel_contacts,
     write_footprints,
 )
@@ -87,16 +91,24 @@ def load_fuse_radius(bev_dir: Path) -> float:
 
 
 def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
-                    fuse_radius_m: float = DEFAULT_FUSE_RADIUS_M) -> dict[int, Frame]:
+                    fuse_radius_m: float = DEFAULT_FUSE_RADIUS_M,
+                    facing_val_accuracy: float | None = None) -> dict[int, Frame]:
     """The footprints of every frame among ``views`` [(prediction, camera)], grouped by ``frame_id``: each frame's
     images estimated and fused together (``frame_footprints``, as the bev stage does: neighbours' axes across the
-    cameras, headings by the roles' votes and the prior's heading table)."""
+    cameras, headings by the roles' votes and the prior's heading table). With ``facing_val_accuracy`` (the facing
+    network's, 0-1) the facing votes are weighed by ``facing_trust`` over all the frames, as the bev stage weighs
+    them over a test set."""
     by_frame: dict[int, list] = {}
     for pred, cam in views:
         by_frame.setdefault(pred.frame_id, []).append((pred, cam))
+    estimated = {frame_id: frame_footprints(fviews, prior, fuse_radius_m) for frame_id, fviews in by_frame.items()}
+    weight = 1.0 if facing_val_accuracy is None else \
+        facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
     frames = {}
     for frame_id, fviews in by_frame.items():
-        _, fused = frame_footprints(fviews, prior, fuse_radius_m)
+        estimates, fused = estimated[frame_id]
+        if weight < 1.0:
+            fused = fuse_frame(weigh_facing(estimates, weight), fuse_radius_m, prior)
         contacts = {}
         for pred, cam in fviews:
             wheels = pred.boxes[pred.class_ids == WHEEL]
@@ -123,19 +135,13 @@ def image_contacts(frame: Frame, image: str) -> np.ndarray:
     return xy[ok] if len(xy) else np.zeros((0, 2))
 
 
-# Fewer camera pairs than this say too little about the facing network to warn about it (``facing_check``).
-MIN_CAMERA_PAIRS = 20
-# How far below its val accuracy the label-free estimate may read before ``facing_check`` warns: on the quick run's
-# test sets (val accuracy 92.1 %) it read 90.4 / 87.6 % in domain (labelled / detected boxes) and 73.2 / 76.3 % on
-# the held-out domain (docs/bev.md, "Front and back").
-FACING_WARN_POINTS = 8.0
-
-
 def facing_check(frames: dict[int, Frame], val_accuracy: float) -> str | None:
     """A line on whether the facing network holds on these frames, from how often two cameras' votes on one vehicle
-    agree (``deepword.footprint.camera_agreement``), set beside its val accuracy (0-1); None where no vehicle was
-    voted on by two cameras (single images)."""
-    pairs, agreeing = camera_agreement([g for frame in frames.values() for g in frame.fused])
+    agree (``deepword.footprint.camera_agreement``), set beside its val accuracy (0-1), with the weight its votes were
+    given for it (``facing_trust``, as ``estimate_frames`` gives it); None where no vehicle was voted on by two cameras
+    (single images)."""
+    fused = [g for frame in frames.values() for g in frame.fused]
+    pairs, agreeing = camera_agreement(fused)
     implied = implied_accuracy(pairs, agreeing)
     if implied is None:
         return None
@@ -143,9 +149,11 @@ def facing_check(frames: dict[int, Frame], val_accuracy: float) -> str | None:
             f"network right for ~{100 * implied:.0f} % of vehicles would ({100 * val_accuracy:.1f} % on its val split)")
     if pairs < MIN_CAMERA_PAIRS:
         return line + f"; too few pairs to judge (under {MIN_CAMERA_PAIRS})"
-    if 100 * implied < 100 * val_accuracy - FACING_WARN_POINTS:
-        return (line + "; well below: its fronts may not hold on these images. Check a few top views, and where the "
-                "fronts are wrong run the pipeline with pipeline.skip=[facing] (docs/bev.md, \"Front and back\")")
+    weight = facing_trust(fused, val_accuracy)
+    if weight < 1.0:
+        return (line + f"; well below, so its votes counted x {weight:.2f}: its fronts may not hold on these images. "
+                "Check a few top views, and where the fronts are wrong run the pipeline with pipeline.skip=[facing] "
+                "(docs/bev.md, \"Front and back\")")
     return line
 
 

@@ -14,7 +14,14 @@ import multiprocessing as mp
 import time
 from collections import defaultdict
 
-from deepword.footprint import FootprintPrior, frame_footprints, shared_fits
+from deepword.footprint import (
+    FootprintPrior,
+    facing_trust,
+    frame_footprints,
+    fuse_frame,
+    shared_fits,
+    weigh_facing,
+)
 from deepword.word_format import Record
 
 # A spawned process costs 2-3 s before it fits anything (importing NumPy, OpenCV and the project), about what it
@@ -37,18 +44,23 @@ def frame_views(preds: dict[str, Record], test: list[Record], cameras: dict) -> 
 
 
 def _fit_frames(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float) -> dict:
-    """{job: {frame: fused footprints}} for ``frames``, every job's fits shared (``shared_fits``)."""
+    """{job: {frame: (its estimates, their fused footprints)}} for ``frames``, every job's fits shared
+    (``shared_fits``)."""
     with shared_fits():
-        return {key: {f: frame_footprints(views.get(f, []), prior, radius_m, use_relations)[1] for f in frames}
+        return {key: {f: frame_footprints(views.get(f, []), prior, radius_m, use_relations) for f in frames}
                 for key, (views, use_relations) in jobs.items()}
 
 
 def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float,
-                     workers: int = 1, min_frames_per_process: int = MIN_FRAMES_PER_PROCESS
-                     ) -> dict[tuple[str, str], dict[int, list]]:
+                     workers: int = 1, min_frames_per_process: int = MIN_FRAMES_PER_PROCESS,
+                     facing_val_accuracy: float | None = None
+                     ) -> tuple[dict[tuple[str, str], dict[int, list]], dict[str, float]]:
     """{job: {frame: [(footprint, its estimates), ...]}} for every job and every frame of ``frames`` (a frame none
-    of a job's views fall in gets none), keyed in the order of ``frames``; ``workers`` > 1: up to that many spawned
-    processes, each every ``workers``-th frame, as long as each gets ``min_frames_per_process`` frames."""
+    of a job's views fall in gets none), keyed in the order of ``frames``, and {box source: the weight its facing votes
+    were given}; ``workers`` > 1: up to that many spawned processes, each every ``workers``-th frame, as long as each
+    gets ``min_frames_per_process`` frames. With ``facing_val_accuracy`` (the facing network's, 0-1) each box source's
+    votes are weighed by ``facing_trust`` of its relation methods' first footprints (DeepWORD's where it is scored),
+    and where that is under 1 its methods' frames are fused again with the weighed votes."""
     started = time.perf_counter()
     order = sorted(frames)
     workers = max(1, min(int(workers), len(order) // max(1, int(min_frames_per_process))))
@@ -61,6 +73,19 @@ def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radiu
         with mp.get_context("spawn").Pool(workers) as pool:   # spawn: safe whatever threads the parent runs
             parts = pool.starmap(_fit_frames, args)
     out = {key: {f: part[key][f] for part in parts for f in part[key]} for key in jobs}
+    trust = {}
+    if facing_val_accuracy is not None:
+        for boxes in dict.fromkeys(b for b, _ in jobs):
+            voted = [key for key, (_, use) in jobs.items() if key[0] == boxes and use]
+            if not voted:
+                continue
+            lead = (boxes, "deepword") if (boxes, "deepword") in voted else voted[0]
+            trust[boxes] = facing_trust([g for _, fused in out[lead].values() for g in fused], facing_val_accuracy)
+            if trust[boxes] < 1.0:
+                for key in voted:
+                    out[key] = {f: (est, fuse_frame(weigh_facing(est, trust[boxes]), radius_m, prior))
+                                for f, (est, _) in out[key].items()}
     print(f"bev: footprints of {len(order)} frames x {len(jobs)} (boxes, method) in "
-          f"{time.perf_counter() - started:.0f} s ({workers} process{'es' if workers > 1 else ''})", flush=True)
-    return {key: {f: fused[f] for f in frames} for key, fused in out.items()}
+          f"{time.perf_counter() - started:.0f} s ({workers} process{'es' if workers > 1 else ''})"
+          + "".join(f"; {b} boxes' facing votes x {w:.2f}" for b, w in trust.items() if w < 1.0), flush=True)
+    return {key: {f: fused[f][1] for f in frames} for key, fused in out.items()}, trust

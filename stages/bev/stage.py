@@ -14,8 +14,8 @@ MLflow keys (docs/design.md §7): the detection scores (``stages.bev.metrics.det
 bins; where the boxes carry facing vectors (the bundle's facing network, which the stage runs on every vehicle box:
 ``deepword.inference.facing_net.OnnxFacing``; else a detector's facing head) ``bev.<boxes>.facing.{acc,vehicles}``
 (``metrics.facing_agreement``: how often they point the right way on the matched test vehicles) and
-``bev.<boxes>.facing.{camera_pairs,camera_agreement,implied_acc}`` (the same without labels:
-``deepword.footprint.camera_agreement``); and the paired
+``bev.<boxes>.facing.{camera_pairs,camera_agreement,implied_acc,trust}`` (the same without labels:
+``deepword.footprint.camera_agreement``, and the weight the votes were given for it: ``facing_trust``); and the paired
 medians as ``bev.<boxes>.<method>.<metric>``
 (matched vehicles within ``bev.max_range_m``),
 ``bev.<boxes>.<method>.<population>.<metric>`` for the populations ``paired`` (two same-side wheels
@@ -257,8 +257,10 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
         for method in [BASELINE, *read]:
             jobs[(boxes, method)] = (frame_views(read[first if method == BASELINE else method], test, cameras),
                                      method != BASELINE)
-    fused_by = fused_footprints(jobs, list({r.frame_id for r in test}), prior, float(bcfg.fuse_radius_m),
-                                int(bcfg.workers or os.cpu_count() or 1))
+    # the facing network's votes weighed by how far its cameras agree on these frames (deepword.footprint.facing_trust)
+    fused_by, trust = fused_footprints(jobs, list({r.frame_id for r in test}), prior, float(bcfg.fuse_radius_m),
+                                       int(bcfg.workers or os.cpu_count() or 1),
+                                       facing_val_accuracy=facing_net.accuracy if facing_net is not None else None)
     for boxes, read in reads.items():
         methods = list(read)
         results[boxes] = {}
@@ -270,7 +272,8 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             implied = implied_accuracy(pairs, agreeing)
             facing[boxes] = {**agreement, "camera_pairs": float(pairs),
                              **({} if implied is None else {"camera_agreement": 100.0 * agreeing / pairs,
-                                                            "implied_acc": 100.0 * implied})}
+                                                            "implied_acc": 100.0 * implied}),
+                             **({"trust": trust[boxes]} if boxes in trust else {})}
         for method in [BASELINE, *methods]:
             fused = fused_by[(boxes, method)]
             matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
@@ -371,8 +374,9 @@ def render_facing(facing: dict, domain: str = "") -> list[str]:
     def agreement(v: dict) -> str:
         if "implied_acc" not in v:
             return ""
+        weighed = f", so its votes counted x {v['trust']:.2f}" if v.get("trust", 1.0) < 1.0 else ""
         return (f"; without labels, two cameras' votes agree on {v['camera_agreement']:.1f} % of "
-                f"{int(v['camera_pairs'])} camera pairs, as a network right for {v['implied_acc']:.1f} % would")
+                f"{int(v['camera_pairs'])} camera pairs, as a network right for {v['implied_acc']:.1f} % would{weighed}")
     return [f"- {domain}{boxes} boxes: the facing vectors point within 90 deg of the true facing for "
             f"{v['acc']:.1f} % of the {int(v['vehicles'])} matched vehicles with 3D truth{agreement(v)}"
             for boxes, v in facing.items()]

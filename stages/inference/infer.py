@@ -214,7 +214,8 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> 
     facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
         preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p for p in preds]
-    frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir))
+    frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir),
+                             facing_net.accuracy if facing_net is not None else None)
     check = facing_check(frames, facing_net.accuracy) if facing_net is not None else None
     if check is not None:
         print(check, file=sys.stderr)

@@ -53,8 +53,9 @@ def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path, ca
             ("gt", "box_bottom"): (frame_views(preds, test, cameras), False),
             ("gt", "nothing"): ({}, True)}
     frames = [2, 0, 1, 7]   # 7: a frame no view falls in
-    one = fused_footprints(jobs, frames, PRIOR, 1.5, workers=1)
-    two = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2, min_frames_per_process=1)
+    one, trust = fused_footprints(jobs, frames, PRIOR, 1.5, workers=1)
+    assert trust == {}   # no facing network: no weights
+    two, _ = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2, min_frames_per_process=1)
     assert "(2 processes)" in capsys.readouterr().out
     assert list(one) == list(jobs) and all(list(fused) == frames for fused in one.values())
     assert sum(len(f) for f in one[("gt", "deepword")].values()) >= 5
@@ -66,6 +67,6 @@ def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path, ca
 
 
 def test_too_few_frames_for_a_process_each_are_fitted_in_this_one(capsys):
-    assert fused_footprints({("gt", "nothing"): ({}, True)}, list(range(15)), PRIOR, 1.5, workers=2) == \
+    assert fused_footprints({("gt", "nothing"): ({}, True)}, list(range(15)), PRIOR, 1.5, workers=2)[0] == \
         {("gt", "nothing"): {f: [] for f in range(15)}}
     assert "(1 process)" in capsys.readouterr().out

@@ -5,9 +5,18 @@ import math
 
 import pytest
 
-from deepword.footprint import Estimate, camera_agreement, implied_accuracy
+from deepword.footprint import (
+    MIN_CAMERA_PAIRS,
+    Estimate,
+    camera_agreement,
+    facing_logit,
+    facing_trust,
+    fuse_frame,
+    implied_accuracy,
+    weigh_facing,
+)
 from deepword.format_3d import Box3D
-from deepword.inference.footprints import MIN_CAMERA_PAIRS, Frame, facing_check
+from deepword.inference.footprints import Frame, facing_check
 from stages.bev.stage import render_facing
 
 
@@ -59,7 +68,7 @@ def test_infer_says_whether_the_facing_network_holds_on_the_frames():
     assert holds.startswith("facing network: two cameras' votes on one vehicle agree for 36 of 40 camera pairs")
     assert "~95 %" in holds and "92.0 % on its val split" in holds and "well below" not in holds
     fails = facing_check(_frames(25, 15), 0.92)  # 62.5 %: ~75 %
-    assert "~75 %" in fails and "well below" in fails and "pipeline.skip=[facing]" in fails
+    assert "~75 %" in fails and "well below, so its votes counted x 0.45" in fails and "pipeline.skip=[facing]" in fails
     few = facing_check(_frames(2, 3), 0.92)
     assert f"too few pairs to judge (under {MIN_CAMERA_PAIRS})" in few and "well below" not in few
 
@@ -71,3 +80,24 @@ def test_the_bev_report_sets_the_label_free_figure_beside_the_truths():
                     "matched vehicles with 3D truth; without labels, two cameras' votes agree on 85.3 % of 109 camera "
                     "pairs, as a network right for 92.0 % would")
     assert render_facing({"gt": {"acc": 50.0, "vehicles": 2.0, "camera_pairs": 0.0}})[0].endswith("with 3D truth")
+
+
+def test_votes_keep_their_weight_unless_the_cameras_say_the_network_is_well_below_its_val_accuracy():
+    def fused(agreeing, disagreeing):
+        return _frames(agreeing, disagreeing)[0].fused
+
+    assert facing_trust(fused(36, 4), 0.92) == 1.0    # implied ~95 %
+    assert facing_trust(fused(33, 7), 0.92) == 1.0    # implied ~88 %: within FACING_DOUBT_POINTS
+    assert facing_trust(fused(3, 2), 0.92) == 1.0     # too few pairs to act on
+    low = facing_trust(fused(25, 15), 0.92)           # implied 75 %: the weight of a 75 % vote against a 92 % one
+    assert low == pytest.approx(facing_logit(0.75) / facing_logit(0.92)) and 0.4 < low < 0.5
+    assert facing_trust(fused(10, 30), 0.92) == 0.0   # at chance or below: no weight
+
+
+def test_weighed_votes_can_lose_to_the_roles():
+    box, group = _vehicle({"front": 1.0})
+    back = [group[0], Estimate(Box3D(5.1, 0.0, 4.5, 1.8, 0.0), "wheel", "left", 0, "left.png", role_vote=-0.8)]
+    assert weigh_facing(back, 1.0) is back
+    ((kept, _),) = fuse_frame(back, 1.5)
+    ((turned, _),) = fuse_frame(weigh_facing(back, 0.5), 1.5)
+    assert abs(kept.yaw) < 1e-6 and abs(abs(turned.yaw) - math.pi) < 1e-6
