@@ -718,6 +718,7 @@ def implied_accuracy(pairs: int, agreeing: int) -> float | None:
         return None
     return 0.5 + 0.5 * math.sqrt(max(2.0 * agreeing / pairs - 1.0, 0.0))
 
+
 # Fewer camera pairs than this say too little about the facing network to act on (``facing_trust``) or warn about.
 MIN_CAMERA_PAIRS = 20
 # How far (percentage points) under the facing network's val accuracy ``implied_accuracy`` may read before its votes
@@ -742,6 +743,7 @@ def weigh_facing(estimates: list[Estimate], weight: float) -> list[Estimate]:
     """The estimates with their facing votes times ``weight`` (``facing_trust``), to fuse again: a frame's fusion
     from its estimates (``fuse_frame``) is cheap beside the fits that made them."""
     return estimates if weight == 1.0 else [replace(e, facing_vote=e.facing_vote * weight) for e in estimates]
+
 
 # --- a frame's cameras ----------------------------------------------------------------------------------
 
