@@ -732,7 +732,11 @@ def facing_trust(fused: list[tuple[Box3D, list[Estimate]]], val_accuracy: float)
     the cameras' agreement (``camera_agreement``) implies an accuracy within ``FACING_DOUBT_POINTS`` of the network's
     ``val_accuracy`` (0-1) or rests on fewer than ``MIN_CAMERA_PAIRS`` pairs; else the log-odds of the implied
     accuracy over those of the val accuracy (0 at chance), the weight a vote of that accuracy would have."""
-    pairs, agreeing = camera_agreement(fused)
+    return agreement_trust(*camera_agreement(fused), val_accuracy)
+
+
+def agreement_trust(pairs: int, agreeing: int, val_accuracy: float) -> float:
+    """``facing_trust`` from an agreement already counted (``camera_agreement``'s pairs and agreeing pairs)."""
     implied = implied_accuracy(pairs, agreeing)
     if implied is None or pairs < MIN_CAMERA_PAIRS or 100 * implied >= 100 * val_accuracy - FACING_DOUBT_POINTS:
         return 1.0

@@ -16,6 +16,7 @@ from deepword.footprint import (
     MIN_CAMERA_PAIRS,
     Estimate,
     FootprintPrior,
+    agreement_trust,
     camera_agreement,
     facing_trust,
     footprint_json,
@@ -149,7 +150,7 @@ def facing_check(frames: dict[int, Frame], val_accuracy: float) -> str | None:
             f"network right for ~{100 * implied:.0f} % of vehicles would ({100 * val_accuracy:.1f} % on its val split)")
     if pairs < MIN_CAMERA_PAIRS:
         return line + f"; too few pairs to judge (under {MIN_CAMERA_PAIRS})"
-    weight = facing_trust(fused, val_accuracy)
+    weight = agreement_trust(pairs, agreeing, val_accuracy)
     if weight < 1.0:
         return (line + f"; well below, so its votes counted x {weight:.2f}: its fronts may not hold on these images. "
                 "Check a few top views, and where the fronts are wrong run the pipeline with pipeline.skip=[facing] "
@@ -175,9 +176,7 @@ def beside_top_view(overlay: np.ndarray, image: str, frame: Frame, half_extent_m
 
 
 def _white_below(img: np.ndarray, height: int) -> np.ndarray:
-    if img.shape[0] >= height:
-        return img
-    return np.concatenate([img, np.full((height - img.shape[0], *img.shape[1:]), 255, img.dtype)], axis=0)
+    return np.pad(img, ((0, height - img.shape[0]), (0, 0), (0, 0)), constant_values=255)
 
 
 def camera_of(pred: Record, calibration: dict | None) -> Camera | None:

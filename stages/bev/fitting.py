@@ -43,6 +43,12 @@ def frame_views(preds: dict[str, Record], test: list[Record], cameras: dict) -> 
     return dict(views)
 
 
+def facing_lead(boxes: str, methods: list[str]) -> tuple[str, str]:
+    """The job whose footprints judge a box source's facing votes (their cameras' agreement, ``facing_trust``):
+    DeepWORD's where it is among ``methods`` (the relation methods scored on those boxes), else the first."""
+    return boxes, "deepword" if "deepword" in methods else methods[0]
+
+
 def _fit_frames(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float) -> dict:
     """{job: {frame: (its estimates, their fused footprints)}} for ``frames``, every job's fits shared
     (``shared_fits``)."""
@@ -59,8 +65,8 @@ def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radiu
     of a job's views fall in gets none), keyed in the order of ``frames``, and {box source: the weight its facing votes
     were given}; ``workers`` > 1: up to that many spawned processes, each every ``workers``-th frame, as long as each
     gets ``min_frames_per_process`` frames. With ``facing_val_accuracy`` (the facing network's, 0-1) each box source's
-    votes are weighed by ``facing_trust`` of its relation methods' first footprints (DeepWORD's where it is scored),
-    and where that is under 1 its methods' frames are fused again with the weighed votes."""
+    votes are weighed by ``facing_trust`` of its ``facing_lead`` job's footprints, and where that is under 1 its
+    methods' frames are fused again with the weighed votes."""
     started = time.perf_counter()
     order = sorted(frames)
     workers = max(1, min(int(workers), len(order) // max(1, int(min_frames_per_process))))
@@ -79,7 +85,7 @@ def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radiu
             voted = [key for key, (_, use) in jobs.items() if key[0] == boxes and use]
             if not voted:
                 continue
-            lead = (boxes, "deepword") if (boxes, "deepword") in voted else voted[0]
+            lead = facing_lead(boxes, [method for _, method in voted])
             trust[boxes] = facing_trust([g for _, fused in out[lead].values() for g in fused], facing_val_accuracy)
             if trust[boxes] < 1.0:
                 for key in voted:

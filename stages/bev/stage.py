@@ -56,7 +56,7 @@ from deepword.inference.facing_net import OnnxFacing
 from deepword.top_view import fused_top_view, panel_grid, top_view
 from deepword.word_format import WHEEL, Dataset, Record, load_image, open_dataset, read_records
 from pipeline.outputs import StageInputs
-from stages.bev.fitting import frame_views, fused_footprints
+from stages.bev.fitting import facing_lead, frame_views, fused_footprints
 from stages.bev.metrics import (
     DETECTION_METRICS,
     METRICS,
@@ -267,7 +267,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
         agreement = facing_agreement(test, read[methods[0]])   # the methods share their boxes
         if agreement is not None:
             # and the label-free check a new camera's frames allow: do two cameras' votes on one vehicle agree?
-            voted = fused_by[(boxes, "deepword" if "deepword" in methods else methods[0])]
+            voted = fused_by[facing_lead(boxes, methods)]
             pairs, agreeing = camera_agreement([g for f in voted.values() for g in f])
             implied = implied_accuracy(pairs, agreeing)
             facing[boxes] = {**agreement, "camera_pairs": float(pairs),
@@ -327,8 +327,7 @@ def flatten(results: dict, detection: dict | None = None, root: str = "bev") -> 
 DETECTION_COLUMNS = (("ap", "AP"), ("ap_0p5m", "AP 0.5m"), ("ap_1m", "AP 1m"), ("ap_2m", "AP 2m"),
                      ("ap_4m", "AP 4m"), ("ate_m", "ATE m"), ("ase", "ASE"), ("aoe_deg", "AOE deg"),
                      ("aoe180_deg", "AOE mod 180 deg"), ("iou", "IoU"), ("center_err_median_m", "median centre m"),
-                     ("recall", "recall"),
-                     ("precision", "precision"))
+                     ("recall", "recall"), ("precision", "precision"))
 
 
 def render_detection(detection: dict, domain: str = "") -> list[str]:
