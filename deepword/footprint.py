@@ -78,7 +78,7 @@ class FootprintPrior:
     length_slope: float       # length = length_slope * wheelbase + length_offset (least squares)
     length_offset: float
     track_inset: float        # median distance from a wheel's contact point in to the body side
-    contact_shift: float      # median distance the back-projected wheel point lies nearer the camera than the contact
+    contact_shift: float      # how much nearer the camera the back-projected wheel point lies than the contact, at 0 m
     box_shift: float          # median distance from the back-projected vehicle box bottom centre on to the centre
     height: float = 1.5       # median vehicle height (footprints are boxes of this height)
     # the contact shift grows with distance: ``contact_shift`` + ``contact_slope`` x the back-projected distance
