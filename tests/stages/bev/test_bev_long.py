@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from deepword.footprint import (
+    SIZE_REFINE_STEP,
     SIZE_SCALES,
     Estimate,
     _size,
@@ -37,12 +38,14 @@ def _contact(v: Box3D, scale: float) -> np.ndarray:
 
 def test_one_wheel_of_a_long_vehicle_gives_a_long_footprint():
     cam = _camera()   # the left camera
-    scale = 1.6       # a bus-like length the size search tries
-    assert scale in SIZE_SCALES
+    scale = SIZE_SCALES[2]
     bus = Box3D(0.5, 5.5, PRIOR.length * scale, 0.0, 0.05)
     vbox = _seen(cam, bus, scale)
     box, _ = fit_sized(fit_wheel, cam, _contact(bus, scale), None, vbox, PRIOR, [bus.yaw])
-    assert abs(box.length - bus.length) < 0.1 and math.hypot(box.x - bus.x, box.y - bus.y) < 0.1
+    # the size's refinement may settle one step shorter (SIZE_PENALTY: a longer size must fit better, and a step
+    # shorter fits this noise-free silhouette almost as well): within a step of the bus's length, placed within 0.2 m
+    assert abs(box.length - bus.length) <= SIZE_REFINE_STEP * PRIOR.length + 1e-6
+    assert math.hypot(box.x - bus.x, box.y - bus.y) < 0.2
     car_size, _ = fit_wheel(cam, _contact(bus, scale), None, vbox, PRIOR, [bus.yaw])   # the prior's size alone
     assert car_size.length == PRIOR.length and math.hypot(car_size.x - bus.x, car_size.y - bus.y) > 1.0
 
@@ -69,16 +72,17 @@ def test_shared_fits_compute_a_fit_once_per_inputs_and_give_the_same_answer():
 
     counted.__name__ = "fit_wheel"
     alone = fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
-    assert len(calls) == len(SIZE_SCALES)
+    per_fit = len(SIZE_SCALES) + 1   # the coarse sizes, then the best one's (1.0) longer neighbour
+    assert calls == [*SIZE_SCALES, 1.0 + SIZE_REFINE_STEP]
     with shared_fits():
         first = fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
         again = fit_sized(counted, cam, _contact(car, 1.0).copy(), None, vbox.copy(), PRIOR, [car.yaw])
-        assert len(calls) == 2 * len(SIZE_SCALES), "the same inputs (equal arrays): fitted once"
+        assert len(calls) == 2 * per_fit, "the same inputs (equal arrays): fitted once"
         fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw + 0.1])
-        assert len(calls) == 3 * len(SIZE_SCALES), "another axis: fitted again"
+        assert len(calls) == 3 * per_fit, "another axis: fitted again"
     assert alone == first == again
     fit_sized(counted, cam, _contact(car, 1.0), None, vbox, PRIOR, [car.yaw])
-    assert len(calls) == 4 * len(SIZE_SCALES), "outside shared_fits nothing is remembered"
+    assert len(calls) == 4 * per_fit, "outside shared_fits nothing is remembered"
 
 
 def _est(box: Box3D, evidence: str, camera: str) -> Estimate:
