@@ -382,9 +382,8 @@ def _fit_sized(fit, args: tuple, scales: tuple[float, ...]) -> tuple[Box3D, floa
                 best = (box, cost, score, scale)
 
     better(scales)
-    coarse = best[3]
-    better([round(coarse + d, 6) for d in (-SIZE_REFINE_STEP, SIZE_REFINE_STEP)
-            if coarse + d >= 1.0 - 1e-9 and round(coarse + d, 6) not in scales])
+    neighbours = (round(best[3] + d, 6) for d in (-SIZE_REFINE_STEP, SIZE_REFINE_STEP))
+    better([s for s in neighbours if s >= 1.0 and s not in scales])
     return best[0], best[1]
 
 
@@ -765,6 +764,14 @@ def weigh_facing(estimates: list[Estimate], weight: float) -> list[Estimate]:
     """The estimates with their facing votes times ``weight`` (``facing_trust``), to fuse again: a frame's fusion
     from its estimates (``fuse_frame``) is cheap beside the fits that made them."""
     return estimates if weight == 1.0 else [replace(e, facing_vote=e.facing_vote * weight) for e in estimates]
+
+
+def refuse_weighed(frames: dict, weight: float, radius_m: float, prior: FootprintPrior | None) -> dict:
+    """{frame: (estimates, fused footprints)} with each frame fused again from its estimates, their facing votes times
+    ``weight`` (``weigh_facing``); the same frames where ``weight`` is 1."""
+    if weight == 1.0:
+        return frames
+    return {f: (est, fuse_frame(weigh_facing(est, weight), radius_m, prior)) for f, (est, _) in frames.items()}
 
 
 # --- a frame's cameras ----------------------------------------------------------------------------------

@@ -21,9 +21,8 @@ from deepword.footprint import (
     facing_trust,
     footprint_json,
     frame_footprints,
-    fuse_frame,
     implied_accuracy,
-    weigh_facing,
+    refuse_weighed,
     wheel_contacts,
     write_footprints,
 )
@@ -103,13 +102,12 @@ def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
     for pred, cam in views:
         by_frame.setdefault(pred.frame_id, []).append((pred, cam))
     estimated = {frame_id: frame_footprints(fviews, prior, fuse_radius_m) for frame_id, fviews in by_frame.items()}
-    weight = 1.0 if facing_val_accuracy is None else \
-        facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
+    if facing_val_accuracy is not None:
+        weight = facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
+        estimated = refuse_weighed(estimated, weight, fuse_radius_m, prior)
     frames = {}
     for frame_id, fviews in by_frame.items():
-        estimates, fused = estimated[frame_id]
-        if weight < 1.0:
-            fused = fuse_frame(weigh_facing(estimates, weight), fuse_radius_m, prior)
+        _, fused = estimated[frame_id]
         contacts = {}
         for pred, cam in fviews:
             wheels = pred.boxes[pred.class_ids == WHEEL]

@@ -18,9 +18,8 @@ from deepword.footprint import (
     FootprintPrior,
     facing_trust,
     frame_footprints,
-    fuse_frame,
+    refuse_weighed,
     shared_fits,
-    weigh_facing,
 )
 from deepword.word_format import Record
 
@@ -87,10 +86,8 @@ def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radiu
                 continue
             lead = facing_lead(boxes, [method for _, method in voted])
             trust[boxes] = facing_trust([g for _, fused in out[lead].values() for g in fused], facing_val_accuracy)
-            if trust[boxes] < 1.0:
-                for key in voted:
-                    out[key] = {f: (est, fuse_frame(weigh_facing(est, trust[boxes]), radius_m, prior))
-                                for f, (est, _) in out[key].items()}
+            for key in voted:
+                out[key] = refuse_weighed(out[key], trust[boxes], radius_m, prior)
     print(f"bev: footprints of {len(order)} frames x {len(jobs)} (boxes, method) in "
           f"{time.perf_counter() - started:.0f} s ({workers} process{'es' if workers > 1 else ''})"
           + "".join(f"; {b} boxes' facing votes x {w:.2f}" for b, w in trust.items() if w < 1.0), flush=True)
