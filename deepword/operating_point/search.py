@@ -24,6 +24,12 @@ thousands of points are tried on a few hundred pairs, and the winner is the one 
 its way. ``smoothing`` (grid steps) chooses instead the point whose neighbourhood scores best on average: the
 mean criterion over the points with the same minimum sides and every class's threshold within that many
 grid steps, the centre of a good plateau rather than its highest needle (``choose_point``).
+
+A second, larger labelled set scored by the same model can steady it further: a ``Prior`` (the generator's val
+split beside a new camera's few val images, ``val_prior`` of a composed dataset) adds its counts to the val
+split's at every point, weighed as ``images`` val images, before the criterion is taken. The best point on the
+generator's images lies near the best on another domain's (docs/detector.md), and as the new images outnumber
+``images`` they decide.
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ from deepword.metrics import Counts, score_image, score_records
 from deepword.relation_graph import subgraph
 from deepword.word_format import Record
 
-__all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "SubsetRelation", "SubsetScores", "choose_point",
+__all__ = ["CRITERION", "DEFAULT_GRID", "OperatingPoint", "Prior", "SubsetRelation", "SubsetScores", "choose_point",
            "end_to_end_score", "keep_at", "kept_masks", "search_operating_point"]
 
 # The one selection criterion of the operating point: the §7 metric (``deepword.metrics``, percent) of the end-to-end
@@ -89,14 +95,31 @@ def end_to_end_score(truths: Sequence[Record], detections: Sequence[Record], poi
     return score_records(list(truths), {p.image: p for p in preds}, min_box_px, match_iou).percentages()[CRITERION]
 
 
+@dataclass(frozen=True)
+class Prior:
+    """Labelled images whose counts join the val split's in the search, weighed as ``images`` val images.
+    ``detections[i]`` are the detections of ``truths[i]``'s image, by the same detector."""
+    truths: Sequence[Record]
+    detections: Sequence[Record]
+    images: float
+
+    def weight(self) -> float:
+        """Each prior image's counts are multiplied by this: together they weigh as ``images`` images."""
+        if self.images < 0:
+            raise ValueError(f"operating point: a prior weighs as >= 0 images, got {self.images}")
+        return float(self.images) / len(self.truths) if self.truths else 0.0
+
+
 def search_operating_point(truths: Sequence[Record], detections: Sequence[Record],
                            predict: Callable[[list[Record]], list[Record]], num_classes: int = 2,
                            grid: Sequence[float] = DEFAULT_GRID,
                            min_side_grid: Sequence[Sequence[float]] | None = None, min_box_px: float = 0.0,
-                           match_iou: float = 0.5, smoothing: int = 0) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
+                           match_iou: float = 0.5, smoothing: int = 0,
+                           prior: Prior | None = None) -> tuple[OperatingPoint, dict[OperatingPoint, float]]:
     """(the operating point ``choose_point`` takes, every evaluated {point: its end-to-end ``CRITERION``}): every
     per-class threshold combination of ``grid`` with every per-class combination of ``min_side_grid[class]`` (None: no
-    minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image."""
+    minimum side). ``detections[i]`` are the detections of ``truths[i]``'s image. With a ``prior``, each point's value
+    is the criterion of the val counts plus the prior's, weighed (``Prior.weight``); ``predict`` decides both."""
     grid = sorted({float(t) for t in grid})
     if not grid:
         raise ValueError("operating point: the threshold grid is empty")
@@ -106,9 +129,18 @@ def search_operating_point(truths: Sequence[Record], detections: Sequence[Record
                          f"got {min_side_grid}")
     points = [OperatingPoint(t, m) for t in itertools.product(grid, repeat=num_classes)
               for m in itertools.product(*sides)]
-    seen = dict(zip(points, SubsetScores(truths, detections, predict, min_box_px, match_iou).scores(points),
-                    strict=True))
+    totals = SubsetScores(truths, detections, predict, min_box_px, match_iou).totals(points).astype(np.float64)
+    if prior is not None and prior.truths:
+        prior_totals = SubsetScores(prior.truths, prior.detections, predict, min_box_px, match_iou).totals(points)
+        totals += prior.weight() * prior_totals
+    seen = dict(zip(points, criterion_of(totals), strict=True))
     return choose_point(seen, smoothing), seen
+
+
+def criterion_of(totals: np.ndarray) -> list[float]:
+    """``CRITERION`` (percent) of each row of count totals (points x ``COUNT_FIELDS``; weighed counts may be
+    fractional)."""
+    return [Counts(**dict(zip(COUNT_FIELDS, row.tolist(), strict=True))).percentages()[CRITERION] for row in totals]
 
 
 def neighbourhood_means(seen: dict[OperatingPoint, float], radius: int) -> dict[OperatingPoint, float]:
@@ -157,13 +189,18 @@ class SubsetScores:
         self.counts: dict[tuple[int, bytes], Counts] = {}
 
     def scores(self, points: Sequence[OperatingPoint]) -> list[float]:
-        """``CRITERION`` (percent) at each of ``points``. The subsets no point scored before go to ``predict`` in one
+        """``CRITERION`` (percent) at each of ``points`` (``totals``)."""
+        return criterion_of(self.totals(points)) if points else []
+
+    def totals(self, points: Sequence[OperatingPoint]) -> np.ndarray:
+        """The §7 counts summed over the images at each of ``points``: (points, ``COUNT_FIELDS``) integers. The
+        subsets no point scored before go to ``predict`` in one
         call, in the order the points first keep them (point by point, image by image), so that it can batch them
         however it likes. Each image's masks at all points are one array operation, and a point's counts are one row
         of a sum over images: the loop over points x images it replaces took 37-39x as long on the export
         config's grid (``benchmarks/bench_operating_point.py``)."""
         if not points:
-            return []
+            return np.zeros((0, len(COUNT_FIELDS)), dtype=np.int64)
         thresholds = np.array([p.thresholds for p in points], dtype=np.float64)   # (P, classes)
         min_sides = np.array([p.min_sides for p in points], dtype=np.float64)
         keys: list[tuple[int, bytes]] = []     # a subset of one image's boxes: (image index, kept mask's bytes)
@@ -183,9 +220,7 @@ class SubsetScores:
                 self.counts[keys[k]] = score_image(self.truths[i], pred, self.min_box_px, self.match_iou)
         table = np.array([[getattr(self.counts[key], name) for name in COUNT_FIELDS] for key in keys],
                          dtype=np.int64)                                                  # (subsets, count fields)
-        totals = table[slot].sum(axis=0)                                                    # (P, count fields)
-        return [Counts(**dict(zip(COUNT_FIELDS, map(int, row), strict=True))).percentages()[CRITERION]
-                for row in totals]
+        return table[slot].sum(axis=0)                                                      # (P, count fields)
 
 
 class SubsetRelation:

@@ -25,10 +25,10 @@ from deepword.word_format.record import (
     Record,
     boxes_only,
 )
-from deepword.word_format.splits import SPLITS, SUBSETS, difficulty_subsets, split_by_frame
+from deepword.word_format.splits import PRIOR_SPLIT, SPLITS, SUBSETS, difficulty_subsets, split_by_frame
 
 __all__ = [
-    "CAMERAS", "CLASS_NAMES", "LABELS_FILE", "REQUIRED_KEYS", "ROLES", "SPLITS", "SUBSETS", "VEHICLE", "WHEEL",
+    "CAMERAS", "CLASS_NAMES", "LABELS_FILE", "PRIOR_SPLIT", "REQUIRED_KEYS", "ROLES", "SPLITS", "SUBSETS", "VEHICLE", "WHEEL",
     "Dataset", "DatasetError", "Record",
     "boxes_only", "check_image_file", "check_image_files", "difficulty_subsets", "image_size", "load_image",
     "open_dataset", "parse_record", "read_records", "split_by_frame", "write_dataset_index", "write_records",

@@ -8,6 +8,10 @@ from deepword.word_format.record import Record
 
 SPLITS = ("train", "val", "test")
 SUBSETS = ("easy", "hard", "mixed")
+# An optional split of a composed dataset (stages/data/compose.py): labelled images of another domain that no model
+# trains, chooses a checkpoint or reports on, and that the operating-point search weighs beside a small val split
+# (the generator's val beside a new camera's few val images; deepword/operating_point/search.py, Prior)
+PRIOR_SPLIT = "val_prior"
 
 
 def split_by_frame(records: list[Record], fractions: dict[str, float], seed: int) -> dict[str, list[str]]:

@@ -4,7 +4,9 @@ Each source is built as its own config would build it, into the one output direc
 split by frame as ``data=synword`` splits it: the same records and the same seed give the same splits), ``pool``
 (N images of a new domain's pool, ``stages.data.pool``) and ``word`` (a WORD directory on disk, its images linked
 in, split by frame as ``data=word`` splits it: ``stages.data.word_source``). A source's ``use`` says which of its own
-splits feed each composed split (``{train: train, val: val, test: null}``: its test images are not used).
+splits feed each composed split (``{train: train, val: val, test: null}``: its test images are not used);
+``val_prior`` (``PRIOR_SPLIT``), optional, takes labelled images that only steady the detector's operating point
+(``use: {val_prior: val}`` on the generator beside a new camera's few val images: deepword/operating_point/search.py).
 ``train_share`` repeats a source's train images (whole copies, at most ``max_repeat``) until they make about that
 share of the composed train split: a few new images beside ~1,000 generated ones would otherwise weigh next to
 nothing. The easy / hard / mixed subsets are drawn from the composed test split as for any dataset.
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from deepword.word_format import SPLITS, DatasetError, Record, difficulty_subsets, write_records
+from deepword.word_format import PRIOR_SPLIT, SPLITS, DatasetError, Record, difficulty_subsets, write_records
 from stages.data.pool import pool_splits, take_images
 from stages.data.stats import make_splits, split_metrics
 from stages.data.synword import generate
@@ -58,6 +60,9 @@ def build_sources(dcfg: dict, seed: int, out_dir: Path) -> tuple[list[Record], d
     repeats = train_repeats(sources, parts)
     splits = {split: [img for name in sources for img in parts[name][split] * (repeats[name] if split == "train" else 1)]
               for split in SPLITS}
+    prior = [img for name in sources for img in parts[name].get(PRIOR_SPLIT, [])]
+    if prior:   # written only where a source gives it images: every other dataset's splits.json is as before
+        splits[PRIOR_SPLIT] = prior
     for split in SPLITS:
         if not splits[split]:
             raise DatasetError(out_dir, None, "data.sources",
@@ -95,11 +100,12 @@ def build_source(name: str, scfg: dict, seed: int, out_dir: Path) -> tuple[list[
 
 def route(name: str, use: dict, own: dict[str, list[str]]) -> dict[str, list[str]]:
     """The source's images per composed split: ``use`` maps a composed split to one of the source's (or null)."""
-    unknown = sorted(set(use) - set(SPLITS))
+    composed = (*SPLITS, PRIOR_SPLIT)
+    unknown = sorted(set(use) - set(composed))
     if unknown:
-        raise ValueError(f"data.sources.{name}.use: unknown split {unknown[0]!r} (have {', '.join(SPLITS)})")
+        raise ValueError(f"data.sources.{name}.use: unknown split {unknown[0]!r} (have {', '.join(composed)})")
     out = {}
-    for split in SPLITS:
+    for split in composed:
         theirs = use.get(split)
         if theirs is not None and theirs not in own:
             raise ValueError(f"data.sources.{name}.use.{split}: {theirs!r} is not a split of the source "

@@ -48,6 +48,7 @@ from deepword.operating_point.report import write_operating_point_report
 from deepword.operating_point.search import (
     CRITERION,
     OperatingPoint,
+    Prior,
     SubsetRelation,
     end_to_end_score,
     search_operating_point,
@@ -57,7 +58,7 @@ from deepword.priors import load_priors
 from deepword.relation_graph import InputConfig, build_graph
 from deepword.rules.baselines import baseline_params, fit_couple_rule, fit_logic, prepare_train
 from deepword.rules.fallback import FALLBACKS, batch_with_fallback
-from deepword.word_format import SUBSETS, boxes_only, load_image, open_dataset
+from deepword.word_format import PRIOR_SPLIT, SUBSETS, boxes_only, load_image, open_dataset
 from pipeline.tracking import stage_run_info
 from stages.export.latency import batches, cpu_ms, graph_batches, onnx_ms, torch_ms
 from stages.export.parity import ParityReport, detector_parity, relation_parity
@@ -303,6 +304,12 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     val = _limit(ds.subset("val"), op_cfg.images)
     if not val:
         raise ValueError("export: the val split is empty; the detector's operating point is chosen on it")
+    # a composed dataset's val_prior split (the generator's val beside a new camera's few val images) steadies the
+    # choice, weighed as prior_images val images (deepword.operating_point.search.Prior)
+    prior_weight = float(op_cfg.get("prior_images") or 0.0)
+    if prior_weight < 0:
+        raise ValueError(f"export.operating_point.prior_images: expected >= 0 images, got {prior_weight:g}")
+    prior_truths = ds.subset(PRIOR_SPLIT) if prior_weight > 0 and PRIOR_SPLIT in ds.splits else []
     classes = list(det_cfg["class_names"])
     side_cfg = op_cfg.get("min_side_grid") or {}
     unknown = sorted(set(side_cfg) - set(classes))
@@ -310,8 +317,9 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
         raise ValueError(f"export.operating_point.min_side_grid: unknown classes {unknown}; the detector has {classes}")
     side_grid = [list(side_cfg.get(c, [0.0])) for c in classes]
     detector = OnnxDetector(out_dir, threads=int(op_cfg.threads), at_operating_point=False)
-    images = {r.image: load_image(ds.root, r) for r in val}
+    images = {r.image: load_image(ds.root, r) for r in [*val, *prior_truths]}
     detections = [detector.detect(images[r.image], r) for r in val]
+    prior_detections = [detector.detect(images[r.image], r) for r in prior_truths]
     shipped = OnnxRelation(out_dir, "dynamic", int(op_cfg.threads))
     embed = None
     if net is not None:
@@ -319,7 +327,7 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
 
         def embed(graphs):
             return EmbeddedBoxes(net, graphs, shipped.flip_average)
-    relation = SubsetRelation(shipped, detections, lambda rec: images[rec.image], embed=embed)
+    relation = SubsetRelation(shipped, [*detections, *prior_detections], lambda rec: images[rec.image], embed=embed)
     split_metrics = {}
     if relation.embedded is not None:
         diff = relation.embedded.max_abs_diff_to(shipped.scores)
@@ -330,22 +338,36 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
         split_metrics["export.detector.operating_point_parity_max_abs_diff"] = diff
     match_iou = float(op_cfg.match_iou)
     method = relation if fallback is None else batch_with_fallback(relation, fallback)
+    prior = Prior(prior_truths, prior_detections, prior_weight) if prior_truths else None
     chosen, seen = search_operating_point(val, detections, method, len(classes), list(op_cfg.grid), side_grid,
-                                          min_box_px, match_iou, int(op_cfg.get("smoothing", 0)))
+                                          min_box_px, match_iou, int(op_cfg.get("smoothing", 0)), prior)
     floor = OperatingPoint(tuple([float(det_cfg["score_threshold"])] * len(classes)), tuple([0.0] * len(classes)))
-    f1_floor = seen.get(floor)
-    if f1_floor is None:
-        f1_floor = end_to_end_score(val, detections, floor, method, min_box_px, match_iou)
+
+    def on_val(point: OperatingPoint) -> float:   # the val split's own figure (the search's pools in a prior)
+        if prior is None and point in seen:
+            return float(seen[point])
+        return float(end_to_end_score(val, detections, point, method, min_box_px, match_iou))
+
+    f1_floor = on_val(floor)
     # DeepWORD alone at the same point: what the fallback adds on val
     alone = float(end_to_end_score(val, detections, chosen, relation, min_box_px, match_iou))
     split_metrics[f"export.detector.val_{CRITERION}_deepword"] = alone
-    write_operating_point_report(out_dir / "artifacts", seen, chosen, classes, f1_floor, method_name,
-                                 alone if fallback is not None else None)
+    searched_on = "the val split"
+    if prior is not None:
+        # the search's values pool both sets; the val split's own figure at the chosen point is reported beside
+        split_metrics[f"export.detector.val_{CRITERION}_with_prior"] = float(seen[chosen])
+        split_metrics["export.detector.prior_images"] = prior_weight
+        split_metrics["export.detector.prior_split_images"] = float(len(prior_truths))
+        searched_on = (f"the val split ({len(val)} images) with the {PRIOR_SPLIT} split ({len(prior_truths)} images) "
+                       f"weighed as {prior_weight:g} images")
+    # the report's values are the search's (pooled with a prior); DeepWORD alone is the val split's: left out there
+    write_operating_point_report(out_dir / "artifacts", seen, chosen, classes, seen.get(floor, f1_floor), method_name,
+                                 alone if fallback is not None and prior is None else None, images=searched_on)
     thresholds = dict(zip(classes, chosen.thresholds, strict=True))
     min_sides = dict(zip(classes, chosen.min_sides, strict=True))
     metrics = {**{f"export.detector.threshold.{c}": float(t) for c, t in thresholds.items()},
                **{f"export.detector.min_side.{c}": float(m) for c, m in min_sides.items()},
-               f"export.detector.val_{CRITERION}": float(seen[chosen]),
+               f"export.detector.val_{CRITERION}": on_val(chosen),
                f"export.detector.val_{CRITERION}_at_score_threshold": float(f1_floor),
                "export.detector.operating_point_evaluations": float(len(seen)),
                "export.detector.operating_point_relation_runs": float(len(relation.predicted)), **split_metrics}
@@ -416,7 +438,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                   "min_side_grid": {c: [float(v) for v in g]
                                     for c, g in (ex.operating_point.get("min_side_grid") or {}).items()},
                   "min_box_px": float(ex.min_box_px), "match_iou": float(ex.operating_point.match_iou),
-                  "smoothing": int(ex.operating_point.get("smoothing", 0))}
+                  "smoothing": int(ex.operating_point.get("smoothing", 0)),
+                  "prior_images": float(det_metrics.get("export.detector.prior_images", 0.0)),
+                  "prior_split_images": int(det_metrics.get("export.detector.prior_split_images", 0))}
         write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search, facing)
 
     metrics = {

@@ -1,6 +1,7 @@
 """``deepword tune``: choose a bundle's detector operating point again, on labelled images of your own.
 
     deepword tune --dataset ROOT --out DIR [--split val] [--run RUN_ID | --export DIR]
+                  [--prior DATA --prior-split val --prior-images 40]
 
 The export stage chose the per-class score thresholds and minimum box sides on our synthetic val split
 (``deepword.operating_point.search``). Other cameras, lenses and scenes score differently: a threshold that was
@@ -12,6 +13,11 @@ where it came from and what it scored), with ``artifacts/operating_point.{md,png
 ``deepword infer --export DIR``. Torch is never imported; each subset of an image's boxes runs the ONNX relation
 model whole: a hundred images and the export stage's 6,760 points take 4-5 minutes on two threads.
 
+On a few dozen images the best point is mostly noise. ``--prior`` adds labelled images of another domain scored by
+the same bundle (e.g. the run's own val split: ``--prior <its data stage output> --prior-split val``), their counts
+weighed as ``--prior-images`` of yours (``deepword.operating_point.search.Prior``): as your images outnumber that, they
+decide.
+
 Choose on images you will not report results on: a point chosen and scored on the same images flatters itself.
 """
 
@@ -22,6 +28,7 @@ import json
 import math
 import shutil
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from deepword.inference.runtime import (
@@ -41,6 +48,7 @@ from deepword.operating_point.search import (
     CRITERION,
     DEFAULT_GRID,
     OperatingPoint,
+    Prior,
     SubsetRelation,
     end_to_end_score,
     search_operating_point,
@@ -54,6 +62,7 @@ from stages.inference.infer import resolve_dirs
 from stages.inference.resolve import ResolveError
 
 TUNED_METHODS = ("deepword", *FALLBACKS)
+PRIOR_KEY = "prior:"   # the prior's records are keyed apart from the tuning images
 
 
 class TuneError(RuntimeError):
@@ -131,29 +140,43 @@ def tune(args) -> dict:
     if smoothing < 0:
         raise TuneError(f"--smoothing {smoothing}: expected a number of grid steps >= 0")
 
+    prior_root, prior_truths = (None, []) if args.prior is None else tuning_records(args.prior, args.prior_split)
+    if args.prior is not None and not prior_truths:
+        raise TuneError(f"--prior {args.prior}: no labelled images")
+    if args.prior_images < 0:
+        raise TuneError(f"--prior-images {args.prior_images:g}: expected a weight >= 0 (in images)")
+    # the prior's images keyed apart from yours: two datasets may well both hold images/front/000000.png
+    prior_truths = [replace(t, image=f"{PRIOR_KEY}{t.image}") for t in prior_truths]
+
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     pixels = {}
-    detections = []
+    detections, prior_detections = [], []
     # a bar on a terminal, plain lines in a log (deepword/progress.py)
-    for truth in progress_lines(truths, len(truths), "detector", "image"):
-        pixels[truth.image] = load_image(root, truth)
-        detections.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
+    for truth in progress_lines([*truths, *prior_truths], len(truths) + len(prior_truths), "detector", "image"):
+        prior = truth.image.startswith(PRIOR_KEY)
+        pixels[truth.image] = load_image(prior_root if prior else root,
+                                         replace(truth, image=truth.image.removeprefix(PRIOR_KEY)) if prior else truth)
+        (prior_detections if prior else detections).append(detector.detect_every(pixels[truth.image],
+                                                                                 boxes_only(truth)))
     progress = ProgressCounter("relation model on subsets of the boxes", "subset")
-    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), detections, lambda r: pixels[r.image],
-                              progress=progress)
+    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), [*detections, *prior_detections],
+                              lambda r: pixels[r.image], progress=progress)
     pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
     method = relation if name in METHOD_VARIANTS else batch_with_fallback(relation, bundle_rule(export, FALLBACKS[name][1]))
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())
     print(f"searching {points} operating points by the {CRITERION} of {name} ...", file=sys.stderr)
+    prior = Prior(prior_truths, prior_detections, args.prior_images) if prior_truths else None
     chosen, seen = search_operating_point(truths, detections, method, len(classes), thresholds,
-                                          [sides[c] for c in classes], min_box_px, match_iou, smoothing)
+                                          [sides[c] for c in classes], min_box_px, match_iou, smoothing, prior)
     progress.close()
     shipped_thresholds, shipped_sides = bundle_operating_point(bundle["detector"])
     before = OperatingPoint(shipped_thresholds or (detector.score_threshold,) * len(classes), shipped_sides)
     floor = OperatingPoint((detector.score_threshold,) * len(classes), (0.0,) * len(classes))
     # either may lie off the searched grid
-    f1_before, f1_floor = (seen[p] if p in seen else end_to_end_score(truths, detections, p, method, min_box_px,
-                                                                       match_iou) for p in (before, floor))
+    f1_before, f1_floor = (seen[p] if p in seen and prior is None else
+                           end_to_end_score(truths, detections, p, method, min_box_px, match_iou) for p in (before, floor))
+    f1_chosen = seen[chosen] if prior is None else end_to_end_score(truths, detections, chosen, method, min_box_px,
+                                                                    match_iou)
 
     if args.out.exists():
         shutil.rmtree(args.out)
@@ -161,13 +184,18 @@ def tune(args) -> dict:
     bundle["detector"]["operating_point"] = dict(zip(classes, chosen.thresholds, strict=True))
     bundle["detector"]["min_side"] = dict(zip(classes, chosen.min_sides, strict=True))
     tuned = {"dataset": str(args.dataset.resolve()), "split": args.split, "images": len(truths), "method": name,
-             "from": str(Path(export).resolve()), CRITERION: seen[chosen], f"{CRITERION}_at_bundle_point": f1_before,
+             "from": str(Path(export).resolve()), CRITERION: f1_chosen, f"{CRITERION}_at_bundle_point": f1_before,
              "bundle_point": {"operating_point": dict(zip(classes, before.thresholds, strict=True)),
                               "min_side": dict(zip(classes, before.min_sides, strict=True))},
              "min_box_px": min_box_px, "match_iou": match_iou, "smoothing": smoothing, "points": len(seen)}
+    if prior is not None:
+        tuned["prior"] = {"dataset": str(args.prior.resolve()), "split": args.prior_split, "images": len(prior_truths),
+                          "weighed_as_images": args.prior_images, f"{CRITERION}_with_prior": seen[chosen]}
     bundle["tuned"] = tuned
     (args.out / BUNDLE_FILE).write_text(json.dumps(bundle, indent=1))
     images = f"{len(truths)} labelled images" + (f" (split {args.split})" if args.split else "")
+    if prior is not None:
+        images += f", with {len(prior_truths)} prior images weighed as {args.prior_images:g}"
     write_operating_point_report(args.out / "artifacts", seen, chosen, classes, f1_floor, name, images=images)
     return tuned
 
@@ -193,6 +221,11 @@ def parser() -> argparse.ArgumentParser:
                    help="choose the point whose neighbourhood of this many threshold grid steps scores best on "
                         "average, not the single best point: steadier on a few dozen images (default: the export "
                         "stage's)")
+    p.add_argument("--prior", type=Path, help="labelled images of another domain (e.g. the run's data stage output "
+                   "with --prior-split val) whose counts steady the choice on a few images of yours")
+    p.add_argument("--prior-split", help="with a data stage output as --prior: its split (e.g. val)")
+    p.add_argument("--prior-images", type=float, default=40.0,
+                   help="the prior weighs as this many of your images (default 40)")
     p.add_argument("--run", help="MLflow run id of the pipeline run whose bundle to tune (default: newest)")
     p.add_argument("--export", type=Path, help="an export stage output directory (instead of --run)")
     p.add_argument("--tracking-uri", help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI or sqlite:///mlflow.db)")

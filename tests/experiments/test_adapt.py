@@ -65,7 +65,8 @@ def test_scratch_and_mixed_jobs_are_what_the_docs_say(sample):
         assert job["init"]["source"] == "scratch" and job["pipeline"]["skip"] == ["facing", "bev"]   # shift_data stays
         assert job["trainer"]["threads"] == 1 and job["relation"]["train"]["threads"] == 1
         assert job["relation"]["train"]["seed"] == default["relation"]["train"]["seed"]
-    assert scratch["data"]["sources"]["synword"]["use"] == {"train": None, "val": None, "test": "test"}
+    assert scratch["data"]["sources"]["synword"]["use"] == {"train": None, "val": None, "test": "test",
+                                                            "val_prior": "val"}
     budget = scratch["adapt"]["budget"]["scratch"][f"n{n}"]
     assert scratch["detector"]["epochs"] == budget["detector_epochs"] != default["detector"]["epochs"]
     assert scratch["detector"]["val_every_n_epochs"] == budget["detector_val_every"]
@@ -74,7 +75,10 @@ def test_scratch_and_mixed_jobs_are_what_the_docs_say(sample):
     det_steps, rel_steps = _steps(budget, n)
     assert 2800 <= det_steps <= 3300 and 1500 <= rel_steps <= 1700       # the steps the budget's comment names
     # mixed: the generator's train split beside the new images, the profile's budget, the pool's val alone
-    assert mixed["data"]["sources"]["synword"]["use"] == {"train": "train", "val": None, "test": "test"}
+    # ... and the generator's val split only as the operating point's prior (docs/detector.md), weighed as 40 images
+    assert mixed["data"]["sources"]["synword"]["use"] == {"train": "train", "val": None, "test": "test",
+                                                          "val_prior": "val"}
+    assert mixed["export"]["operating_point"]["prior_images"] == 40
     assert mixed["data"]["sources"]["pool"]["train_share"] == 0.25
     assert mixed["detector"] == {**default["detector"]}
     assert {k: v for k, v in mixed["relation"].items() if k != "train"} == \
@@ -94,7 +98,7 @@ def test_finetune_jobs_start_from_the_base_run_with_a_budget_in_steps(sample):
     assert job["init"]["relation_train"]["epochs"] == budget["relation_epochs"]
     assert job["init"]["relation_train"]["patience"] == budget["relation_patience"]
     assert job["detector"]["val_every_n_epochs"] == budget["detector_val_every"]
-    assert job["data"]["sources"]["synword"]["use"] == {"train": None, "val": None, "test": "test"}
+    assert job["data"]["sources"]["synword"]["use"] == {"train": None, "val": None, "test": "test", "val_prior": "val"}
     det_steps, rel_steps = _steps(budget, n)
     assert 550 <= det_steps <= 650 and 300 <= rel_steps <= 340
 

@@ -1,3 +1,4 @@
+import dataclasses
 import itertools
 from dataclasses import replace
 
@@ -5,8 +6,10 @@ import numpy as np
 import pytest
 
 from deepword.geometry import containment
+from deepword.metrics import score_records
 from deepword.operating_point.search import (
     OperatingPoint,
+    Prior,
     SubsetRelation,
     choose_point,
     end_to_end_score,
@@ -74,6 +77,38 @@ def test_chosen_thresholds_maximise_val_pair_f1():
     assert chosen == no_sides((0.5, 0.3))
     # keeping everything, as before the operating point, loses a wheel to the false vehicle and adds one
     assert every[no_sides((0.1, 0.1))] < 70.0
+
+
+# the same vehicle, its weak true wheel scored 0.22 and nothing false: a wheel threshold above 0.2 loses that wheel
+PRIOR_DETECTIONS = record([[10, 10, 110, 70, 0.9, 0, 0], [15, 50, 35, 70, 0.8, 1, 1], [85, 50, 105, 70, 0.22, 1, 2]])
+
+
+def test_a_prior_adds_its_weighed_counts_and_moves_the_point_as_it_outweighs_val():
+    grid = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    alone, seen_alone = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid)
+    # val needs the wheel threshold at 0.3 (its false wheel scores 0.25); the prior needs it at 0.2 at most
+    assert alone == no_sides((0.5, 0.3))
+    unweighed, seen_zero = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid,
+                                                  prior=Prior([TRUTH], [PRIOR_DETECTIONS], 0.0))
+    assert unweighed == alone and seen_zero == pytest.approx(seen_alone)
+
+    def pooled(point, weight):   # the criterion of val's counts plus the prior's, by hand
+        val = score_records([TRUTH], {TRUTH.image: tightest_vehicle([point.keep(DETECTIONS)])[0]}, 0.0, 0.5)
+        pri = score_records([TRUTH], {TRUTH.image: tightest_vehicle([point.keep(PRIOR_DETECTIONS)])[0]}, 0.0, 0.5)
+        return dataclasses.replace(val, **{f.name: getattr(val, f.name) + weight * getattr(pri, f.name)
+                                           for f in dataclasses.fields(val)}).percentages()["pair_f1"]
+
+    # two prior images weighed as ten: five times each one's counts
+    heavy, seen_heavy = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid,
+                                               prior=Prior([TRUTH, TRUTH], [PRIOR_DETECTIONS] * 2, 10.0))
+    assert seen_heavy == pytest.approx({p: pooled(p, 10.0) for p in seen_heavy})
+    assert heavy == no_sides((0.5, 0.1))   # 0.1 and 0.2 keep the same wheels: the one that keeps the most
+    light, _ = search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid,
+                                      prior=Prior([TRUTH], [PRIOR_DETECTIONS], 0.1))
+    assert light == alone
+    with pytest.raises(ValueError, match="a prior weighs as >= 0 images"):
+        search_operating_point([TRUTH], [DETECTIONS], tightest_vehicle, 2, grid,
+                               prior=Prior([TRUTH], [PRIOR_DETECTIONS], -1.0))
 
 
 # a tiny false wheel scored above the weak true one: no wheel threshold keeps the true wheel and drops it

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from deepword.word_format import SPLITS, DatasetError, open_dataset
+from deepword.word_format import PRIOR_SPLIT, SPLITS, DatasetError, open_dataset
 from stages.data.compose import build_sources, train_repeats
 from stages.data.pool import PoolTooSmall, draw_order, pool_splits, take_images, val_positions
 from stages.data.stage import build_dataset
@@ -85,7 +85,7 @@ def adapt_cfg(recipe_use: dict, share=None, synword_frames: int = 4) -> dict:
 
 
 def test_the_composed_data_stage_writes_a_valid_dataset_of_both_sources(tmp_path):
-    cfg = adapt_cfg({"train": "train", "val": None, "test": "test"})   # the mixed recipe's
+    cfg = adapt_cfg({"train": "train", "val": None, "test": "test", "val_prior": "val"})   # the mixed recipe's
     metrics = build_dataset(cfg, SEED, tmp_path)
     ds = open_dataset(tmp_path)                                          # every record validated on read
     source = {r.image: r.extra["data_source"] for r in ds.records}
@@ -100,6 +100,9 @@ def test_the_composed_data_stage_writes_a_valid_dataset_of_both_sources(tmp_path
     build_dataset(synword_cfg(frames=4), SEED, alone)
     own = open_dataset(alone).splits
     assert ds.splits["test"] == own["test"] and [i for i in ds.splits["train"] if source[i] == "synword"] == own["train"]
+    # the generator's val split steadies the operating point (val_prior), and nothing else takes it
+    assert ds.splits[PRIOR_SPLIT] == own["val"] and not set(own["val"]) & set(ds.splits["val"] + ds.splits["train"])
+    assert PRIOR_SPLIT not in own                                        # a dataset without one writes none
     assert metrics["data.pool.images"] == 10.0 and metrics["data.test.images"] == len(own["test"])
     assert (tmp_path / "artifacts" / "contact_sheet_pool.png").is_file()
     assert (tmp_path / "artifacts" / "contact_sheet_synword.png").is_file()
@@ -128,6 +131,10 @@ def test_composition_errors_name_the_source(tmp_path):
     cfg = adapt_cfg({"train": None, "val": None, "test": "tset"})
     with pytest.raises(ValueError, match=r"data.sources.synword.use.test: 'tset' is not a split"):
         build_sources(cfg, SEED, tmp_path / "typo")
+    cfg = adapt_cfg({"train": None, "val": None, "test": "test", "prior": "val"})
+    with pytest.raises(ValueError, match=r"data.sources.synword.use: unknown split 'prior' \(have train, val, test, "
+                                         r"val_prior\)"):
+        build_sources(cfg, SEED, tmp_path / "prior")
     cfg["sources"]["synword"].update(name="coco", use={"test": "test"})
     with pytest.raises(ValueError, match="data.sources.synword.name: 'coco' cannot be composed"):
         build_sources(cfg, SEED, tmp_path / "coco")

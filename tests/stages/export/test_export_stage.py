@@ -106,3 +106,45 @@ def test_an_unknown_end_to_end_method_fails_before_anything_is_exported(upstream
     entry, fallback = end_to_end_entry(open_dataset(upstream["data"]), OmegaConf.merge(cfg, {"method": "deepword"}),
                                        4.0, 0)
     assert entry["method"] == "deepword" and fallback is None and set(entry["rules"]) == {"logic"}
+
+
+def test_a_val_prior_split_joins_the_search_weighed_and_the_val_figures_stay_the_val_splits(upstream, exported,
+                                                                                          tmp_path):
+    """A composed dataset's val_prior split (the generator's val beside a new camera's few val images) adds its counts,
+    weighed as ``prior_images`` val images; the metrics named val_* stay the val split's own. Weighed as nothing it
+    changes nothing; weighed as a million images it chooses what ``deepword tune`` chooses on those images alone."""
+    import shutil
+
+    from omegaconf import OmegaConf
+
+    from deepword.inference.runtime import bundle_rule, end_to_end_method
+    from deepword.rules.fallback import FALLBACKS
+    from deepword.word_format import PRIOR_SPLIT, open_dataset
+    from stages.export.stage import choose_operating_point
+    from stages.inference.tune import main as tune
+    from tests.stages.export.tiny_models import EXPORT_CFG
+
+    out, shipped = exported
+    bundle = json.loads((out / BUNDLE_FILE).read_text())
+    ds = open_dataset(upstream["data"])
+    ds.splits[PRIOR_SPLIT] = list(ds.splits["test"])
+    fallback = bundle_rule(out, FALLBACKS[end_to_end_method(out)][1])
+
+    def choose(weight):
+        work = tmp_path / f"w{weight}"
+        shutil.copytree(out, work)
+        op = OmegaConf.create({**EXPORT_CFG["operating_point"], "prior_images": weight})
+        return choose_operating_point(ds, work, bundle["detector"], op, float(EXPORT_CFG["min_box_px"]), None, 1e-4,
+                                      fallback, "deepword_then_logic"), work
+
+    (thresholds, sides, metrics), _ = choose(0)
+    assert metrics["export.detector.val_pair_f1"] == pytest.approx(shipped["export.detector.val_pair_f1"])
+    assert "export.detector.prior_images" not in metrics and thresholds == bundle["detector"]["operating_point"]
+    (thresholds, sides, metrics), work = choose(1e6)
+    assert metrics["export.detector.prior_images"] == 1e6
+    assert metrics["export.detector.prior_split_images"] == len(ds.splits["test"])
+    assert "with the val_prior split" in (work / "artifacts" / "operating_point.md").read_text()
+    assert tune(["--dataset", str(upstream["data"]), "--split", "test", "--export", str(out),
+                 "--out", str(tmp_path / "on_test")]) == 0
+    alone = json.loads((tmp_path / "on_test" / BUNDLE_FILE).read_text())["tuned"]
+    assert metrics["export.detector.val_pair_f1_with_prior"] == pytest.approx(alone["pair_f1"], abs=1e-3)

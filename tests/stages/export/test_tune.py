@@ -88,3 +88,25 @@ def test_tune_never_imports_torch(upstream, exported, tmp_path):
             "assert not loaded, loaded")
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_prior_steadies_the_choice_and_is_recorded(upstream, exported, tmp_path, capsys):
+    """--prior adds another set's counts weighed as --prior-images: weighed as nothing the choice is tune's own (and
+    the prior's images, which share paths with the tuning images, are kept apart), weighed as a million it is what
+    tune chooses on the prior alone."""
+    base = ["--dataset", str(upstream["data"]), "--split", "val", "--export", str(exported[0])]
+    prior = ["--prior", str(upstream["data"]), "--prior-split", "test"]
+    assert tune([*base, "--out", str(tmp_path / "own")]) == 0
+    assert tune([*base, *prior, "--prior-images", "0", "--out", str(tmp_path / "zero")]) == 0
+    assert tune(["--dataset", str(upstream["data"]), "--split", "test", "--export", str(exported[0]),
+                 "--out", str(tmp_path / "on_test")]) == 0
+    assert tune([*base, *prior, "--prior-images", "1e6", "--out", str(tmp_path / "heavy")]) == 0
+    read = {name: json.loads((tmp_path / name / BUNDLE_FILE).read_text()) for name in ("own", "zero", "on_test", "heavy")}
+    assert read["zero"]["detector"]["operating_point"] == read["own"]["detector"]["operating_point"]
+    assert read["zero"]["tuned"]["pair_f1"] == pytest.approx(read["own"]["tuned"]["pair_f1"])
+    heavy = read["heavy"]["tuned"]
+    assert heavy["prior"]["images"] == 7 and heavy["prior"]["weighed_as_images"] == 1e6 and heavy["images"] == 1
+    assert heavy["prior"]["pair_f1_with_prior"] == pytest.approx(read["on_test"]["tuned"]["pair_f1"], abs=1e-3)
+    capsys.readouterr()
+    assert tune([*base, *prior, "--prior-images", "-1", "--out", str(tmp_path / "bad")]) == 2
+    assert "--prior-images -1: expected a weight >= 0" in capsys.readouterr().err
