@@ -7,11 +7,10 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+# tools/install.py installs with uv (pip's indexes and constraints passed on), else with pip.
+$(STAMP): pyproject.toml tools/install.py
 	test -x $(PY) || python3 -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) tools/install.py torch==2.13.0 -e '.[dev]'
 	touch $(STAMP)
 
 pipeline: setup
@@ -46,7 +45,7 @@ bench: setup
 	$(PY) -m benchmarks $(ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check pipeline stages deepword tests benchmarks
+	$(VENV)/bin/ruff check pipeline stages deepword tests benchmarks tools
 
 ui: setup
 	$(PY) -m pipeline.ui $(ARGS)
