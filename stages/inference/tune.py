@@ -153,11 +153,11 @@ def tune(args) -> dict:
     detections, prior_detections = [], []
     # a bar on a terminal, plain lines in a log (deepword/progress.py)
     for truth in progress_lines([*truths, *prior_truths], len(truths) + len(prior_truths), "detector", "image"):
-        prior = truth.image.startswith(PRIOR_KEY)
-        pixels[truth.image] = load_image(prior_root if prior else root,
-                                         replace(truth, image=truth.image.removeprefix(PRIOR_KEY)) if prior else truth)
-        (prior_detections if prior else detections).append(detector.detect_every(pixels[truth.image],
-                                                                                 boxes_only(truth)))
+        is_prior = truth.image.startswith(PRIOR_KEY)
+        pixels[truth.image] = load_image(prior_root if is_prior else root,
+                                         replace(truth, image=truth.image.removeprefix(PRIOR_KEY)) if is_prior else truth)
+        (prior_detections if is_prior else detections).append(detector.detect_every(pixels[truth.image],
+                                                                                    boxes_only(truth)))
     progress = ProgressCounter("relation model on subsets of the boxes", "subset")
     relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), [*detections, *prior_detections],
                               lambda r: pixels[r.image], progress=progress)
@@ -196,7 +196,9 @@ def tune(args) -> dict:
     images = f"{len(truths)} labelled images" + (f" (split {args.split})" if args.split else "")
     if prior is not None:
         images += f", with {len(prior_truths)} prior images weighed as {args.prior_images:g}"
-    write_operating_point_report(args.out / "artifacts", seen, chosen, classes, f1_floor, name, images=images)
+    # the report shows the search's values (pooled with a prior), its floor row too
+    write_operating_point_report(args.out / "artifacts", seen, chosen, classes, seen.get(floor, f1_floor), name,
+                                 images=images)
     return tuned
 
 
