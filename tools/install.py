@@ -56,6 +56,8 @@ def main(packages: list[str]) -> int:
         if subprocess.run(uv, check=False).returncode == 0:
             return 0
         print("tools/install.py: uv failed; installing with pip", file=sys.stderr)
+    else:
+        print("tools/install.py: uv could not be installed (the errors above); installing with pip", file=sys.stderr)
     return subprocess.run([*pip, *packages], check=False).returncode
 
 
