@@ -371,20 +371,15 @@ def fit_sized(fit, *args, scales: tuple[float, ...] = SIZE_SCALES) -> tuple[Box3
 
 
 def _fit_sized(fit, args: tuple, scales: tuple[float, ...]) -> tuple[Box3D, float]:
-    best = None
+    def scored(scale: float) -> tuple[float, float, Box3D, float]:   # (penalised cost, scale, box, cost)
+        box, cost = fit(*args, scale=scale)
+        return cost + SIZE_PENALTY * (scale - 1), scale, box, cost
 
-    def better(candidates) -> None:
-        nonlocal best
-        for scale in candidates:
-            box, cost = fit(*args, scale=scale)
-            score = cost + SIZE_PENALTY * (scale - 1)
-            if best is None or score < best[2]:
-                best = (box, cost, score, scale)
-
-    better(scales)
-    neighbours = (round(best[3] + d, 6) for d in (-SIZE_REFINE_STEP, SIZE_REFINE_STEP))
-    better([s for s in neighbours if s >= 1.0 and s not in scales])
-    return best[0], best[1]
+    # min keeps the first of equals: a coarse size over its neighbours, the shorter of two coarse sizes
+    best = min((scored(s) for s in scales), key=lambda t: t[0])
+    neighbours = [round(best[1] + d, 6) for d in (-SIZE_REFINE_STEP, SIZE_REFINE_STEP)]
+    best = min([best, *(scored(s) for s in neighbours if s >= 1.0 and s not in scales)], key=lambda t: t[0])
+    return best[2], best[3]
 
 
 def fit_free(cam: Camera, vbox: np.ndarray, prior: FootprintPrior, start: Box3D,

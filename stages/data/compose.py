@@ -60,7 +60,7 @@ def build_sources(dcfg: dict, seed: int, out_dir: Path) -> tuple[list[Record], d
     repeats = train_repeats(sources, parts)
     splits = {split: [img for name in sources for img in parts[name][split] * (repeats[name] if split == "train" else 1)]
               for split in SPLITS}
-    prior = [img for name in sources for img in parts[name].get(PRIOR_SPLIT, [])]
+    prior = [img for name in sources for img in parts[name][PRIOR_SPLIT]]
     if prior:   # written only where a source gives it images: every other dataset's splits.json is as before
         splits[PRIOR_SPLIT] = prior
     for split in SPLITS:
