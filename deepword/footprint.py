@@ -7,7 +7,8 @@ calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Pe
 - ``sides``: two couples (four wheels): the axis from both side lines, the centre between them;
 - ``side``: two wheels of one side (a couple, or two owned wheels as far apart as a wheelbase): the side
   line gives the axis, the wheelbase the length (``FootprintPrior.length_for``), the width prior puts the
-  centre behind the side, away from the camera;
+  centre behind the side, away from the camera. A couple whose wheels no vehicle box owns (the detector missed or
+  cut the vehicle, and found its wheels) is a ``side`` of its own, without a vehicle box (``orphan_sides``);
 - ``axle``: two wheels of one axle: the axis is perpendicular, the centre half a wheelbase further away;
 - ``wheel``: one wheel: the centre half a wheelbase ahead of a ``rear`` wheel or behind a ``front`` one and
   (width/2 - track inset) to its side; the heading (over 360 deg) and the side are the ones whose vehicle image
@@ -15,6 +16,9 @@ calibrated fisheye camera onto z = 0, is a metric point (``wheel_contacts``). Pe
 - ``box``: no wheel: the vehicle whose image best fits the vehicle box, searched over its ground position around
   the ``box_bottom`` guess, its axis along the camera's viewing direction (``fit_free``: a vehicle whose wheels
   are all hidden is most often seen end-on), of the two headings the one whose cabin fits best.
+
+A couple whose contacts lie closer than ``MIN_COUPLE_SHARE`` of the prior's wheelbase is not two axles of one side
+(most often one wheel boxed twice, or a wheel whose box is cut): its weaker wheel is left out (``plausible_wheels``).
 
 A weak estimate (``wheel``, ``box``) takes the axis of the nearest footprint of its frame resting on a side's two
 wheels within ``CONTEXT_RADIUS_M`` instead (``estimate_frame``, ``context_axes``): vehicles parked in a row or
@@ -36,7 +40,7 @@ detector's scores on detected boxes, 1 on ground-truth boxes); a no-wheel estima
 silhouette fit's cost.
 
 ``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
-one vehicle (seen by two cameras); its footprint is the mean of its strongest estimates, its heading turned
+one vehicle (seen by two cameras), except two of one image's vehicle boxes, which are two vehicles; its footprint is the mean of its strongest estimates, its heading turned
 the way its strongest directed estimates point, its confidence the highest of its estimates', less the share of it
 that more confident footprints cover (``suppress_overlaps``: vehicles do not overlap on the ground).
 """
@@ -66,6 +70,14 @@ EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # w
 # edge, hidden in part, a long or odd body) places it worst. Chosen on the train and val splits (docs/bev.md,
 # "Confidence"); the scale only orders no-wheel estimates among themselves and against the detector's scores.
 FIT_COST_SCALE = 0.1
+# A couple is two axles of one side when its contacts lie at least this share of the prior's wheelbase apart: closer,
+# the couple's axis is noise (on detected boxes the side estimates whose axis was 20-90 deg off had implied lengths of
+# 0.7-3.4 m, the right ones 3.7-5.5 m: docs/bev.md, "Couples and orphans"). Chosen on two datasets' val and test splits
+# (not the run's own): 0.54-0.75 gained on detected boxes, 0.86 lost on labelled ones.
+MIN_COUPLE_SHARE = 0.7
+# A couple no vehicle box owns gives a footprint at this share of a ``side`` estimate's confidence: the vehicle box
+# that would confirm it is missing (0.25-1 measured; 0.5 best, docs/bev.md).
+ORPHAN_CONFIDENCE = 0.5
 
 
 @dataclass(frozen=True)
@@ -119,7 +131,7 @@ class Estimate:
     box: Box3D
     evidence: str           # one of EVIDENCE
     camera: str
-    vehicle_box_id: int
+    vehicle_box_id: int | None   # None: a couple of wheels no vehicle box owns (``orphan_sides``)
     image: str
     confidence: float = 1.0  # EVIDENCE_CONFIDENCE x the vehicle box's score x the used wheels' mean score (x fit_trust
     #                          for a no-wheel estimate); after fusion x what suppress_overlaps leaves
@@ -526,6 +538,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                              weak: bool = True) -> list[Estimate]:
     """``estimate_record`` given the wheels' ground contact points (wheel box_id -> (x, y)); ``weak=False``: only
     the vehicles resting on two or more wheels."""
+    if use_relations:
+        rec = plausible_wheels(rec, contacts, prior)
     by_id = {int(b[6]): b for b in rec.boxes}
     facings = record_facing(rec) if use_relations else {}
     facing_acc, facing_scale = record_facing_accuracy(rec, FACING_VAL_ACC), rec.extra.get(FACING_SCALE_KEY)
@@ -595,6 +609,40 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             out.append(Estimate(box=box, evidence=evidence, camera=rec.camera, vehicle_box_id=vid, image=rec.image,
                                 confidence=conf, role_vote=vote,
                                 facing_vote=facing_vote(cam, box, facings.get(vid), facing_acc, facing_scale)))
+    if use_relations:
+        out += orphan_sides(rec, cam, prior, contacts, owner, roles, couple_order)
+    return out
+
+
+def plausible_wheels(rec: Record, contacts: dict[int, np.ndarray], prior: FootprintPrior) -> Record:
+    """``rec`` without the weaker wheel (lower score; the second on labelled boxes) of each couple whose contacts lie
+    closer than ``MIN_COUPLE_SHARE`` x the prior's wheelbase: no vehicle's two axles stand that close, so the couple's
+    line is no side (one wheel boxed twice, a cut box). The wheel leaves the couples and the relations; its box stays."""
+    score = {int(b[6]): float(b[4]) for b in rec.boxes}
+    shortest = MIN_COUPLE_SHARE * prior.wheelbase
+    dropped = {min((b, a), key=lambda w: score[w]) for a, b in rec.wheel_pairs
+               if a in contacts and b in contacts and float(np.linalg.norm(contacts[a] - contacts[b])) < shortest}
+    if not dropped:
+        return rec
+    return replace(rec, relations=[r for r in rec.relations if r[1] not in dropped],
+                   wheel_pairs=[(a, b) for a, b in rec.wheel_pairs if a not in dropped and b not in dropped])
+
+
+def orphan_sides(rec: Record, cam: Camera, prior: FootprintPrior, contacts: dict[int, np.ndarray],
+                 owner: dict[int, int], roles: dict[int, str], couple_order: set) -> list[Estimate]:
+    """A ``side`` estimate (``vehicle_box_id`` None) for each couple of ``rec`` neither of whose wheels a vehicle box
+    owns: the detector found the wheels and missed the vehicle (cut by the image's edge, hidden behind another), and
+    the relation network still paired them. Confidence ``ORPHAN_CONFIDENCE`` x a side's x the wheels' mean score."""
+    score = {int(b[6]): float(b[4]) for b in rec.boxes}
+    out = []
+    for a, b in rec.wheel_pairs:
+        if a in owner or b in owner or a not in contacts or b not in contacts:
+            continue
+        a, b, vote = _ordered(a, b, roles, (a, b) in couple_order)
+        out.append(Estimate(box=_side_box(cam, contacts[a], contacts[b], prior), evidence="side", camera=rec.camera,
+                            vehicle_box_id=None, image=rec.image,
+                            confidence=EVIDENCE_CONFIDENCE["side"] * ORPHAN_CONFIDENCE * (score[a] + score[b]) / 2,
+                            role_vote=vote))
     return out
 
 
@@ -809,10 +857,17 @@ def same_vehicle(lead: Box3D, other: Box3D, radius_m: float) -> bool:
     return across <= radius_m and along <= radius_m + max(0.0, (lead.length - other.length) / 2)
 
 
+def two_boxes_of_one_image(a: Estimate, b: Estimate) -> bool:
+    """Whether ``a`` and ``b`` come from two vehicle boxes of one image: a detector (or an annotator) boxes two
+    vehicles there, so however close their estimates lie they are not one vehicle."""
+    return (a.image == b.image and a.vehicle_box_id is not None and b.vehicle_box_id is not None
+            and a.vehicle_box_id != b.vehicle_box_id)
+
+
 def fuse_frame(estimates: list[Estimate], radius_m: float,
                prior: FootprintPrior | None = None) -> list[tuple[Box3D, list[Estimate]]]:
     """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate, along a
-    longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest evidence first, then the camera that saw the vehicle nearest); each group -> one footprint,
+    longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest evidence first, then the camera that saw the vehicle nearest), never two of one image's vehicle boxes (``two_boxes_of_one_image``); each group -> one footprint,
     the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
     (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
     leading estimate points; the groups' estimates' confidences then lowered where footprints overlap
@@ -823,7 +878,7 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     groups: list[list[Estimate]] = []
     for e in sorted(estimates, key=lambda e: (e.rank, nearness(e))):
         for g in groups:
-            if same_vehicle(g[0].box, e.box, radius_m):
+            if same_vehicle(g[0].box, e.box, radius_m) and not any(two_boxes_of_one_image(x, e) for x in g):
                 g.append(e)
                 break
         else:

@@ -121,8 +121,8 @@ def with_objects_3d(pred: Record, frame: Frame) -> Record:
     """The prediction with its frame's footprints as ``objects_3d``: per vehicle box the fused footprint its estimate
     joined (``footprint_json``: box, evidence, the cameras that saw it, confidence, ``heading_from``), per wheel its
     contact point; in the calibration's vehicle frame."""
-    objs = {str(e.vehicle_box_id): footprint_json(box, g)
-            for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image}
+    objs = {str(e.vehicle_box_id): footprint_json(box, g)   # a couple no vehicle box owns: footprints.jsonl alone
+            for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image and e.vehicle_box_id is not None}
     wheels, xy, ok = frame.contacts[pred.image]
     objs.update({str(int(w[6])): {"contact": [round(float(v), 4) for v in xy[i]]}
                  for i, w in enumerate(wheels) if ok[i]})
