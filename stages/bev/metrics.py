@@ -102,6 +102,9 @@ TP_THRESHOLD = 2.0
 MIN_RECALL = 0.1
 MIN_PRECISION = 0.1
 RECALL_LEVELS = 101
+# ``recall_at_p95``: the most of the subset's vehicles found at a confidence threshold whose estimates are at least
+# this precise (at TP_THRESHOLD): one point of the precision-recall curve, where a user would put the threshold
+OPERATING_PRECISION = 0.95
 
 
 def ap_key(threshold: float) -> str:
@@ -110,7 +113,8 @@ def ap_key(threshold: float) -> str:
 
 
 DETECTION_METRICS = ("ap", *(ap_key(t) for t in DIST_THRESHOLDS), "ate_m", "ase", "aoe_rad", "aoe_deg",
-                     "aoe180_deg", "iou", "center_err_median_m", "recall", "precision", "vehicles", "estimates")
+                     "aoe180_deg", "iou", "center_err_median_m", "recall", "precision", "recall_at_p95", "vehicles",
+                     "estimates")
 
 
 @dataclass(frozen=True)
@@ -181,6 +185,19 @@ def pr_curve(tp: np.ndarray, confidence: np.ndarray, n_true: int) -> tuple[np.nd
     return levels, np.interp(levels, recall, precision, right=0), np.interp(levels, recall, confidence, right=0)
 
 
+def recall_at_precision(tp: np.ndarray, confidence: np.ndarray, n_true: int, precision: float) -> float:
+    """The highest recall (0-1) over the confidence thresholds (``tp``, ``confidence``: the ranked estimates, confidence
+    falling) at which the estimates kept are at least ``precision`` precise; a threshold keeps every estimate of a
+    tied confidence or none. 0 when none is."""
+    if not len(tp) or n_true == 0:
+        return 0.0
+    tp_c = np.cumsum(tp).astype(np.float64)
+    kept = np.arange(1, len(tp) + 1, dtype=np.float64)
+    at_threshold = np.append(confidence[1:] != confidence[:-1], True)   # the last estimate of each confidence
+    ok = at_threshold & (tp_c >= precision * kept - 1e-12)
+    return float(tp_c[ok].max() / n_true) if ok.any() else 0.0
+
+
 def tp_error(errors: np.ndarray, match_conf: np.ndarray, level_conf: np.ndarray) -> float:
     """nuScenes' calc_tp: the running mean of the matches' errors (confidence order) read at each recall level's
     confidence, averaged over the recall levels above MIN_RECALL up to the highest one reached; NaN without matches.
@@ -209,7 +226,8 @@ def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_
     outside the subset counts for neither. AP in %, per threshold and their mean (``ap``); ATE (m), ASE, AOE over
     360 deg (rad and deg) and modulo 180 deg (deg) at TP_THRESHOLD, recall-averaged; ``iou`` the mean BEV IoU of the
     matches at TP_THRESHOLD; ``center_err_median_m`` the median centre distance of those matches; ``recall`` and
-    ``precision`` (%) of all estimates at TP_THRESHOLD."""
+    ``precision`` (%) of all estimates at TP_THRESHOLD; ``recall_at_p95`` (%) the recall at the lowest confidence
+    threshold whose estimates are OPERATING_PRECISION precise (``recall_at_precision``)."""
     n_true = sum(keep_truth(t) for truth, _ in frames for t in truth)
     out = {k: float("nan") for k in DETECTION_METRICS}
     out["vehicles"] = float(n_true)
@@ -246,6 +264,7 @@ def detection_scores(frames: list[tuple[list[TrueVehicle], list[Scored]]], keep_
             out["recall"] = 100.0 * len(matched) / n_true
             out["precision"] = 100.0 * len(matched) / len(ranked) if ranked else float("nan")
             out["estimates"] = float(len(ranked))
+            out["recall_at_p95"] = 100.0 * recall_at_precision(tp, conf, n_true, OPERATING_PRECISION)
     out["ap"] = float(np.mean(aps))
     return out
 

@@ -327,14 +327,15 @@ def flatten(results: dict, detection: dict | None = None, root: str = "bev") -> 
 DETECTION_COLUMNS = (("ap", "AP"), ("ap_0p5m", "AP 0.5m"), ("ap_1m", "AP 1m"), ("ap_2m", "AP 2m"),
                      ("ap_4m", "AP 4m"), ("ate_m", "ATE m"), ("ase", "ASE"), ("aoe_deg", "AOE deg"),
                      ("aoe180_deg", "AOE mod 180 deg"), ("iou", "IoU"), ("center_err_median_m", "median centre m"),
-                     ("recall", "recall"), ("precision", "precision"))
+                     ("recall", "recall"), ("precision", "precision"), ("recall_at_p95", "recall at 95 % precision"))
 
 
 def render_detection(detection: dict, domain: str = "") -> list[str]:
     lines = ["Scored the nuScenes way on each frame's fused footprints: AP (%) with centre-distance matching at "
              "0.5/1/2/4 m over estimates ranked by confidence, `AP` their mean; ATE, ASE (1 - IoU of the aligned "
              "sizes), AOE over 360 deg and modulo 180 deg: recall-averaged true-positive errors at 2 m; IoU: mean BEV "
-             "IoU of the 2 m matches; median centre m: their median centre distance; recall, precision (%) at 2 m. Subsets: `all`, `two_wheels`, `one_wheel`, "
+             "IoU of the 2 m matches; median centre m: their median centre distance; recall, precision (%) at 2 m of every estimate; "
+             "recall at 95 % precision: at the confidence threshold that keeps estimates 95 % right. Subsets: `all`, `two_wheels`, `one_wheel`, "
              "`no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
     for boxes, by_method in detection.items():
         lines += [f"## {domain}{boxes} boxes: detection scores", "",

@@ -17,7 +17,8 @@ DOMAINS = {"": "in domain", "shift.": "held out"}
 BOXES = {"gt": "ground truth", "detected": "detected"}
 # (metric key, column): the detection scores of one subset (design.md §7).
 SCORES = (("ap", "AP (%)"), ("ate_m", "ATE (m)"), ("ase", "ASE"), ("aoe_deg", "AOE 360° (°)"),
-          ("aoe180_deg", "AOE mod 180° (°)"), ("recall", "recall (%)"), ("precision", "precision (%)"))
+          ("aoe180_deg", "AOE mod 180° (°)"), ("recall", "recall (%)"), ("precision", "precision (%)"),
+          ("recall_at_p95", "recall at 95 % precision (%)"))
 PAIRED = ("paired", "center_err_m", "median centre error, two same-side wheels (m)")
 SUBSETS = {"all": "all within range", "two_wheels": "two wheels", "one_wheel": "one wheel", "no_wheel": "no wheel",
            "0-5m": "0–5 m", "5-10m": "5–10 m", "10-20m": "10–20 m"}

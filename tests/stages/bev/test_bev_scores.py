@@ -25,6 +25,7 @@ from stages.bev.metrics import (
     TrueVehicle,
     average_precision,
     detection_scores,
+    recall_at_precision,
     scale_error,
     summarise,
 )
@@ -67,6 +68,28 @@ def test_a_crafted_precision_recall_curve_gives_the_hand_computed_ap():
     # last point of a recall level), so only the level r = 1.00 loses (1 - 2/3) / 0.9
     frames[0][1][0] = Scored(_car(0.0, -8.0), 0.1)
     assert detection_scores(frames, *ALL)["ap"] == pytest.approx(100 - 100 * (1 / 3) / 90 / 0.9)
+
+
+def test_recall_at_95_percent_precision_is_read_where_a_threshold_can_cut():
+    """Twenty true vehicles; ranked: 19 true, then a false one, then one true. Keeping the first 19 is 100 % precise
+    (recall 95 %), the first 20 95 % (still recall 95 %), all 21 20/21 = 95.2 % (recall 100 %)."""
+    tp = np.array([1] * 19 + [0, 1])
+    conf = np.linspace(1.0, 0.5, 21)
+    assert recall_at_precision(tp, conf, 20, 0.95) == pytest.approx(1.0)
+    # two false ones: all 22 keep 20/22 = 90.9 %, so the threshold stops after the 19 true ones
+    tp2, conf2 = np.array([1] * 19 + [0, 0, 1]), np.linspace(1.0, 0.5, 22)
+    assert recall_at_precision(tp2, conf2, 20, 0.95) == pytest.approx(0.95)
+    # a tie cannot be cut: the false estimate shares the 10th true one's confidence, so keeping the 10th keeps it
+    tp3 = np.array([1] * 9 + [1, 0] + [0] * 5)
+    conf3 = np.array([1.0 - 0.01 * i for i in range(9)] + [0.5, 0.5] + [0.1] * 5)
+    assert recall_at_precision(tp3, conf3, 10, 0.95) == pytest.approx(0.9)
+    assert recall_at_precision(np.array([0, 1]), np.array([0.9, 0.8]), 1, 0.95) == 0.0
+    # in the scores: the crafted curve above never reaches 95 % precision past its first estimate (a false one)
+    a, b = _car(5.0, 0.0), _car(-5.0, 3.0)
+    frames = [([TrueVehicle(a), TrueVehicle(b)], [Scored(_car(0.0, -8.0), 0.9), Scored(a, 0.8), Scored(b, 0.7)])]
+    assert detection_scores(frames, *ALL)["recall_at_p95"] == 0.0
+    frames[0][1][0] = Scored(_car(0.0, -8.0), 0.1)
+    assert detection_scores(frames, *ALL)["recall_at_p95"] == 100.0
 
 
 def test_ap_per_threshold_follows_the_centre_distance():
