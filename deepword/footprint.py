@@ -40,9 +40,10 @@ detector's scores on detected boxes, 1 on ground-truth boxes); a no-wheel estima
 silhouette fit's cost.
 
 ``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
-one vehicle (seen by two cameras), except two of one image's vehicle boxes, which are two vehicles; its footprint is the mean of its strongest estimates, its heading turned
-the way its strongest directed estimates point, its confidence the highest of its estimates', less the share of it
-that more confident footprints cover (``suppress_overlaps``: vehicles do not overlap on the ground).
+one vehicle (seen by two cameras), except two of one image's vehicle boxes, which are two vehicles; its footprint is
+the mean of its strongest estimates, its heading turned the way its strongest directed estimates point, its
+confidence the highest of its estimates', less the share of it that more confident footprints cover
+(``suppress_overlaps``: vehicles do not overlap on the ground).
 """
 
 from __future__ import annotations
@@ -72,8 +73,9 @@ EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # w
 FIT_COST_SCALE = 0.1
 # A couple is two axles of one side when its contacts lie at least this share of the prior's wheelbase apart: closer,
 # the couple's axis is noise (on detected boxes the side estimates whose axis was 20-90 deg off had implied lengths of
-# 0.7-3.4 m, the right ones 3.7-5.5 m: docs/bev.md, "Couples and orphans"). Chosen on two datasets' val and test splits
-# (not the run's own): 0.54-0.75 gained on detected boxes, 0.86 lost on labelled ones.
+# 0.7-3.4 m, the right ones 3.7-5.5 m: docs/bev.md, "Couples without a vehicle, and couples too short"). Chosen on two
+# datasets' val and test splits (not the run's own): 0.54-0.75 gained on detected boxes, 0.86 lost 0.4-0.5 AP on
+# labelled ones.
 MIN_COUPLE_SHARE = 0.7
 # A couple no vehicle box owns gives a footprint at this share of a ``side`` estimate's confidence: the vehicle box
 # that would confirm it is missing (0.25-1 measured; 0.5 best, docs/bev.md).
@@ -867,7 +869,9 @@ def two_boxes_of_one_image(a: Estimate, b: Estimate) -> bool:
 def fuse_frame(estimates: list[Estimate], radius_m: float,
                prior: FootprintPrior | None = None) -> list[tuple[Box3D, list[Estimate]]]:
     """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate, along a
-    longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest evidence first, then the camera that saw the vehicle nearest), never two of one image's vehicle boxes (``two_boxes_of_one_image``); each group -> one footprint,
+    longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest
+    evidence first, then the camera that saw the vehicle nearest), never two of one image's vehicle boxes
+    (``two_boxes_of_one_image``); each group -> one footprint,
     the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
     (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
     leading estimate points; the groups' estimates' confidences then lowered where footprints overlap

@@ -334,9 +334,9 @@ def render_detection(detection: dict, domain: str = "") -> list[str]:
     lines = ["Scored the nuScenes way on each frame's fused footprints: AP (%) with centre-distance matching at "
              "0.5/1/2/4 m over estimates ranked by confidence, `AP` their mean; ATE, ASE (1 - IoU of the aligned "
              "sizes), AOE over 360 deg and modulo 180 deg: recall-averaged true-positive errors at 2 m; IoU: mean BEV "
-             "IoU of the 2 m matches; median centre m: their median centre distance; recall, precision (%) at 2 m of every estimate; "
-             "recall at 95 % precision: at the confidence threshold that keeps estimates 95 % right. Subsets: `all`, `two_wheels`, `one_wheel`, "
-             "`no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
+             "IoU of the 2 m matches; median centre m: their median centre distance; recall, precision (%) at 2 m of "
+             "every estimate; recall at 95 % precision: at the confidence threshold that keeps estimates 95 % right. "
+             "Subsets: `all`, `two_wheels`, `one_wheel`, `no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
     for boxes, by_method in detection.items():
         lines += [f"## {domain}{boxes} boxes: detection scores", "",
                   "| method | subset | vehicles | estimates | " + " | ".join(h for _, h in DETECTION_COLUMNS) + " |",
