@@ -54,7 +54,8 @@ def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
     notes = [f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), id {run.run_id}: every frame's footprints (its "
              "cameras fused) against its true vehicles within the run's `bev.max_range_m` of the vehicle frame's origin. "
              "AP: the mean over 0.5 / 1 / 2 / 4 m centre distance; ATE, ASE, AOE: at 2 m, averaged over recall as "
-             "nuScenes does; AOE over 360° (front and back told apart) and modulo 180°; recall and precision at 2 m.",
+             "nuScenes does; AOE over 360° (front and back told apart) and modulo 180°; recall and precision at 2 m of "
+             "every footprint, and the recall at the lowest confidence threshold whose footprints are 95 % precise.",
              "The last column is the paired median of the vehicles with two visible same-side wheels, as earlier "
              "runs reported it (docs/bev.md, \"Scoring\")."]
     main = Table("Bird's-eye view, scored the nuScenes way", header, rows, notes)
