@@ -72,8 +72,8 @@ EVIDENCE_WHEELS = {"sides": 2, "side": 2, "axle": 2, "wheel": 1, "box": 0}   # w
 # "Confidence"); the scale only orders no-wheel estimates among themselves and against the detector's scores.
 FIT_COST_SCALE = 0.1
 # A couple is two axles of one side when its contacts lie at least this share of the prior's wheelbase apart: closer,
-# the couple's axis is noise (on detected boxes the side estimates whose axis was 20-90 deg off had implied lengths of
-# 0.7-3.4 m, the right ones 3.7-5.5 m: docs/bev.md, "Couples without a vehicle, and couples too short"). Chosen on two
+# the couple's axis is noise (on detected boxes the side estimates whose axis was 20-90 deg off implied median lengths
+# of 2.1-3.4 m, the right ones 4.5 m: docs/bev.md, "Couples without a vehicle, and couples too short"). Chosen on two
 # datasets' val and test splits (not the run's own): 0.54-0.75 gained on detected boxes, 0.86 lost 0.4-0.5 AP on
 # labelled ones.
 MIN_COUPLE_SHARE = 0.7
