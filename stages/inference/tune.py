@@ -145,21 +145,22 @@ def tune(args) -> dict:
         raise TuneError(f"--prior {args.prior}: no labelled images")
     if args.prior_images < 0:
         raise TuneError(f"--prior-images {args.prior_images:g}: expected a weight >= 0 (in images)")
-    # the prior's images keyed apart from yours: two datasets may well both hold images/front/000000.png
-    prior_truths = [replace(t, image=f"{PRIOR_KEY}{t.image}") for t in prior_truths]
+    # (dataset root, record as stored, record as searched): the prior's images keyed apart from yours, since two
+    # datasets may well both hold images/front/000000.png
+    keyed = [replace(t, image=f"{PRIOR_KEY}{t.image}") for t in prior_truths]
+    sources = [(root, t, t) for t in truths] + [(prior_root, t, k) for t, k in zip(prior_truths, keyed, strict=True)]
+    prior_truths = keyed
 
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
     pixels = {}
-    detections, prior_detections = [], []
+    found = []
     # a bar on a terminal, plain lines in a log (deepword/progress.py)
-    for truth in progress_lines([*truths, *prior_truths], len(truths) + len(prior_truths), "detector", "image"):
-        is_prior = truth.image.startswith(PRIOR_KEY)
-        pixels[truth.image] = load_image(prior_root if is_prior else root,
-                                         replace(truth, image=truth.image.removeprefix(PRIOR_KEY)) if is_prior else truth)
-        (prior_detections if is_prior else detections).append(detector.detect_every(pixels[truth.image],
-                                                                                    boxes_only(truth)))
+    for source_root, stored, truth in progress_lines(sources, len(sources), "detector", "image"):
+        pixels[truth.image] = load_image(source_root, stored)
+        found.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
+    detections, prior_detections = found[:len(truths)], found[len(truths):]
     progress = ProgressCounter("relation model on subsets of the boxes", "subset")
-    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), [*detections, *prior_detections],
+    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), found,
                               lambda r: pixels[r.image], progress=progress)
     pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
     method = relation if name in METHOD_VARIANTS else batch_with_fallback(relation, bundle_rule(export, FALLBACKS[name][1]))
