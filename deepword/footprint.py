@@ -80,6 +80,14 @@ MIN_COUPLE_SHARE = 0.7
 # A couple no vehicle box owns gives a footprint at this share of a ``side`` estimate's confidence: the vehicle box
 # that would confirm it is missing (0.25-1 measured; 0.5 best, docs/bev.md).
 ORPHAN_CONFIDENCE = 0.5
+# A couple whose implied length lies outside this band of the prior's length (x 0.8-1.25) must explain its vehicle
+# box's left and right edges (``side_fits_box``: cost at most SIDE_FIT_MAX_COST, as ``silhouette_cost`` counts it on
+# those two edges), else it is taken for one wheel of each of two vehicles and the vehicle is fitted from its box
+# alone. Only the horizontal edges: a bus's couple is right, and the car-shaped silhouette misses its height. Chosen on
+# four datasets the run never trained on, in domain and held out (docs/bev.md, "Couples without a vehicle, and couples
+# too short": "A couple that does not fit its box").
+SIDE_LENGTH_BAND = (0.8, 1.25)
+SIDE_FIT_MAX_COST = 0.1
 
 
 @dataclass(frozen=True)
@@ -312,14 +320,27 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
     return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
 
 
-def silhouette_cost(pred: np.ndarray, seen: np.ndarray) -> np.ndarray:
+def silhouette_cost(pred: np.ndarray, seen: np.ndarray, edges: list[int] | None = None) -> np.ndarray:
     """(N,) mismatch of projected boxes ``pred`` (N, 4) with the seen vehicle box ``seen`` (4,): squared edge
-    distances in shares of the seen box's larger side, an edge beyond the seen box weighted ``BEYOND_WEIGHT``."""
+    distances in shares of the seen box's larger side, an edge beyond the seen box weighted ``BEYOND_WEIGHT``;
+    summed over ``edges`` (indices of x1, y1, x2, y2; all four when None)."""
     seen = np.asarray(seen[:4], dtype=np.float64)
     d = (pred - seen) / max(float(seen[2] - seen[0]), float(seen[3] - seen[1]), 1.0)
     d[:, :2] = -d[:, :2]                      # positive: the projection reaches beyond the seen box
     w = np.where(d > 0, np.asarray(BEYOND_WEIGHT), 1.0)
-    return (w * d * d).sum(axis=1)
+    cost = w * d * d
+    return (cost if edges is None else cost[:, edges]).sum(axis=1)
+
+
+def side_fits_box(cam: Camera, box: Box3D, vbox: np.ndarray, prior: FootprintPrior) -> bool:
+    """Whether a side's footprint ``box`` (from two wheels' contacts) may be the vehicle ``vbox`` shows: its length
+    lies within ``SIDE_LENGTH_BAND`` of the prior's, or the silhouette of a vehicle that long (``_size``) meets the
+    box's left and right edges (``SIDE_FIT_MAX_COST``)."""
+    share = box.length / prior.length
+    if SIDE_LENGTH_BAND[0] <= share <= SIDE_LENGTH_BAND[1]:
+        return True
+    pred = silhouette_boxes(cam, [[box.x, box.y]], [box.yaw], _size(prior, share), prior.shape)
+    return float(silhouette_cost(pred, vbox, edges=[0, 2])[0]) <= SIDE_FIT_MAX_COST
 
 
 def _size(prior: FootprintPrior, scale: float = 1.0) -> tuple[float, float, float]:
@@ -567,6 +588,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             box = orient(box, [h for h, _ in votes])
             vote = sum(v * math.copysign(1.0, math.cos(h - box.yaw)) for h, v in votes)
             used = [w for pair in own_couples[:2] for w in pair]
+            if not side_fits_box(cam, box, vbox, prior):
+                box, evidence, vote, used = None, "box", 0.0, []
         elif len(wheels) >= 2:
             if own_couples:
                 a, b = own_couples[0]
@@ -578,6 +601,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             if own_couples or apart >= side_threshold:
                 a, b, vote = _ordered(a, b, roles, (a, b) in couple_order)
                 box, evidence = _side_box(cam, contacts[a], contacts[b], prior), "side"
+                if not side_fits_box(cam, box, vbox, prior):
+                    box, evidence, vote, used = None, "box", 0.0, []
             else:
                 box, evidence = _axle_box(cam, contacts[a], contacts[b], prior), "axle"
                 axle_roles = {roles.get(a), roles.get(b)}
@@ -596,6 +621,8 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                 along = np.dot(np.array([box.x, box.y]) - c, (math.cos(box.yaw), math.sin(box.yaw)))
                 points_front = (along < 0) == (role == "front")   # the centre lies behind a front wheel
                 vote = ROLE_WHEEL_LOGIT if points_front else -ROLE_WHEEL_LOGIT
+        if box is None and not weak:   # a side that did not fit its box (``side_fits_box``): no context
+            continue
         if box is None:
             start = box_bottom_estimate(cam, vbox, prior)
             box, evidence, vote, used = start, "box", 0.0, []
