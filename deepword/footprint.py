@@ -588,8 +588,6 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             box = orient(box, [h for h, _ in votes])
             vote = sum(v * math.copysign(1.0, math.cos(h - box.yaw)) for h, v in votes)
             used = [w for pair in own_couples[:2] for w in pair]
-            if not side_fits_box(cam, box, vbox, prior):
-                box, evidence, vote, used = None, "box", 0.0, []
         elif len(wheels) >= 2:
             if own_couples:
                 a, b = own_couples[0]
@@ -601,8 +599,6 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             if own_couples or apart >= side_threshold:
                 a, b, vote = _ordered(a, b, roles, (a, b) in couple_order)
                 box, evidence = _side_box(cam, contacts[a], contacts[b], prior), "side"
-                if not side_fits_box(cam, box, vbox, prior):
-                    box, evidence, vote, used = None, "box", 0.0, []
             else:
                 box, evidence = _axle_box(cam, contacts[a], contacts[b], prior), "axle"
                 axle_roles = {roles.get(a), roles.get(b)}
@@ -621,8 +617,11 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
                 along = np.dot(np.array([box.x, box.y]) - c, (math.cos(box.yaw), math.sin(box.yaw)))
                 points_front = (along < 0) == (role == "front")   # the centre lies behind a front wheel
                 vote = ROLE_WHEEL_LOGIT if points_front else -ROLE_WHEEL_LOGIT
-        if box is None and not weak:   # a side that did not fit its box (``side_fits_box``): no context
-            continue
+        if evidence in ("sides", "side") and not side_fits_box(cam, box, vbox, prior):
+            # one wheel of each of two vehicles: the vehicle is fitted from its box alone, and gives no context
+            if not weak:
+                continue
+            box, evidence, vote, used = None, "box", 0.0, []
         if box is None:
             start = box_bottom_estimate(cam, vbox, prior)
             box, evidence, vote, used = start, "box", 0.0, []

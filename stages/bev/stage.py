@@ -336,7 +336,8 @@ def render_detection(detection: dict, domain: str = "") -> list[str]:
              "sizes), AOE over 360 deg and modulo 180 deg: recall-averaged true-positive errors at 2 m; IoU: mean BEV "
              "IoU of the 2 m matches; median centre m: their median centre distance; recall, precision (%) at 2 m of "
              "every estimate; recall at 95 % precision: at the confidence threshold that keeps estimates 95 % right. "
-             "Subsets: `all`, `two_wheels`, `one_wheel`, `no_wheel` (wheels of the vehicle annotated in one image) within the range; distance bins.", ""]
+             "Subsets: `all`, `two_wheels`, `one_wheel`, `no_wheel` (wheels of the vehicle annotated in one image) "
+             "within the range; distance bins.", ""]
     for boxes, by_method in detection.items():
         lines += [f"## {domain}{boxes} boxes: detection scores", "",
                   "| method | subset | vehicles | estimates | " + " | ".join(h for _, h in DETECTION_COLUMNS) + " |",
