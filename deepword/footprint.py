@@ -299,23 +299,28 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
     vehicle ends)."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
-    size = np.broadcast_to(np.asarray(size, dtype=np.float64).reshape(-1, 3), (len(xy), 3))
+    size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
     coef, off = shape.points()
-    local = coef[None] * size[:, None, :] + off[None]                      # (N, P, 3)
+    # one size for all (a fit's candidates): the points once, (1, P, 3), not once per candidate
+    local = coef[None] * (size if len(size) == 1 else np.broadcast_to(size, (len(xy), 3)))[:, None, :] + off[None]
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    world = np.stack([xy[:, :1] + c * local[..., 0] - s * local[..., 1],
-                      xy[:, 1:] + s * local[..., 0] + c * local[..., 1], local[..., 2]], axis=2).reshape(-1, 3)
+    world = np.stack(np.broadcast_arrays(xy[:, :1] + c * local[..., 0] - s * local[..., 1],
+                                         xy[:, 1:] + s * local[..., 0] + c * local[..., 1], local[..., 2]),
+                     axis=2).reshape(-1, 3)
     pc = cam.to_cam(world)
     chi = np.hypot(pc[:, 0], pc[:, 1])
-    beyond = np.arctan2(chi, pc[:, 2]) > cam.theta_max
-    if beyond.any():
+    theta = np.arctan2(chi, pc[:, 2])   # the lens' own angle too (project_polar): computed once
+    beyond = np.flatnonzero(theta > cam.theta_max)
+    if len(beyond):
         tm = cam.theta_max
         scale = math.sin(tm) / np.maximum(chi[beyond], 1e-12)
-        pc[beyond] = np.stack([pc[beyond, 0] * scale, pc[beyond, 1] * scale,
-                               np.full(int(beyond.sum()), math.cos(tm))], axis=1)
+        pc[beyond] = np.stack([pc[beyond, 0] * scale, pc[beyond, 1] * scale, np.full(len(beyond), math.cos(tm))],
+                              axis=1)
+        chi[beyond] = np.hypot(pc[beyond, 0], pc[beyond, 1])
+        theta[beyond] = np.arctan2(chi[beyond], pc[beyond, 2])
     # (2, N, P): u and v each with a vehicle's points contiguous, so that the bbox is four row reductions (a fit asks
     # for thousands of silhouettes; reducing (N, P, 2) over its middle axis took a fifth of the bev stage)
-    uv = np.ascontiguousarray(cam.project_cam(pc).T).reshape(2, len(xy), -1) - BOX_TO_IMAGE
+    uv = np.ascontiguousarray(cam.lens.project_polar(pc, chi, theta).T).reshape(2, len(xy), -1) - BOX_TO_IMAGE
     boxes = np.concatenate([uv.min(axis=2).T, uv.max(axis=2).T], axis=1)
     return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
 
