@@ -33,9 +33,14 @@ WEIGHTS_FILE = "facing.pt"
 
 
 def split_crops(records, root, size: int, margin: float, jitter: float, rng: np.random.Generator | None,
-                limit: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Crops (M, 3, size, size) uint8 and crop-pixel unit targets (M, 2) of every vehicle with a facing target
-    (``deepword.facing.box_facings``) in ``records``; with ``rng`` each also once more with its box jittered."""
+                limit: int | None = None, pad: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Crops (M, 3, size + 2 pad, size + 2 pad) uint8 and crop-pixel unit targets (M, 2) of every vehicle with a
+    facing target (``deepword.facing.box_facings``) in ``records``; with ``rng`` each also once more with its box
+    jittered. With ``pad`` the crop reaches ``pad`` pixels further on each side at the same scale, so that its central
+    ``size`` window is the crop a margin of ``margin`` gives (``augment`` moves that window); a direction in the crop
+    does not depend on the margin (the box grows alike in width and height)."""
+    margin = ((1 + 2 * margin) * (size + 2 * pad) / size - 1) / 2
+    size += 2 * pad
     crops, targets = [], []
     for rec in records[:limit] if limit else records:
         facings = box_facings(rec)
@@ -72,8 +77,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ds = open_dataset(inputs["data"])
     size, margin = int(fc.input_size), float(fc.margin)
     rng = np.random.default_rng(seed)
+    pad = round(float(tc.get("shift", 0.0)) * size)   # absent (older configs): no shift
     train_x, train_y = split_crops(ds.subset("train"), ds.root, size, margin, float(tc.box_jitter), rng,
-                                   tc.get("limit_train_images"))
+                                   tc.get("limit_train_images"), pad)
     val_x, val_y = split_crops(ds.subset("val"), ds.root, size, margin, 0.0, None)
     convs = fc.get("convs")   # absent (older configs): FacingNet's two a block
     settings = {"input_size": size, "margin": margin, "widths": list(fc.widths), "hidden": int(fc.hidden),
@@ -105,7 +111,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         net.train()
         total = 0.0
         for idx in torch.randperm(len(xs), generator=gen).split(batch):
-            x, y = augment(xs[idx], ys[idx], gen)
+            x, y = augment(xs[idx], ys[idx], gen, size)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
                 loss = facing_loss(net(x.to(device).contiguous(memory_format=layout)).float(), y.to(device))
             opt.zero_grad()
@@ -142,11 +148,19 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
 BRIGHTNESS, CHANNEL_GAIN = 0.3, 0.1
 
 
-def augment(crops, targets, gen):
-    """A training batch: each crop mirrored with probability 1/2 (its target's x negated), its brightness scaled by
-    1 +- BRIGHTNESS and each channel by 1 +- CHANNEL_GAIN (white balance); float crops in 0-255."""
+def augment(crops, targets, gen, size: int | None = None):
+    """A training batch: from crops larger than ``size`` (``split_crops``' pad) a ``size`` window of each at a random
+    place (a translation: the target's direction holds), each mirrored with probability 1/2 (its target's x negated),
+    its brightness scaled by 1 +- BRIGHTNESS and each channel by 1 +- CHANNEL_GAIN (white balance); float crops in
+    0-255."""
     import torch
 
+    spare = crops.shape[-1] - (size or crops.shape[-1])
+    if spare > 0:
+        b, window = len(crops), torch.arange(size)
+        ox, oy = (torch.randint(0, spare + 1, (2, b), generator=gen))
+        crops = crops[torch.arange(b)[:, None, None, None], torch.arange(3)[None, :, None, None],
+                      (oy[:, None] + window)[:, None, :, None], (ox[:, None] + window)[:, None, None, :]]
     x, y = crops.to(torch.float32), targets.clone()
     flip = torch.rand(len(x), generator=gen) < 0.5
     x[flip] = x[flip].flip(-1)

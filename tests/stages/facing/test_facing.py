@@ -20,7 +20,7 @@ from deepword.facing_crop import to_crop, to_image
 from deepword.inference.facing_net import OnnxFacing, vehicle_crops
 from deepword.word_format import difficulty_subsets, write_dataset_index, write_records
 from stages.facing.model import FacingNet, facing_loss
-from stages.facing.stage import CONFIG_FILE, WEIGHTS_FILE, split_crops
+from stages.facing.stage import CONFIG_FILE, WEIGHTS_FILE, augment, split_crops
 from stages.facing.stage import run as run_facing
 
 FACING_CFG = {"input_size": 24, "margin": 0.1, "widths": [4, 8], "hidden": 8,
@@ -81,6 +81,45 @@ def test_train_crops_come_from_the_3d_truth_once_as_labelled_and_once_jittered(r
     assert len(plain) == known and len(plain_targets) == known
     flat = [replace(r, extra={}) for r in records]                                   # 2D labels only
     assert len(split_crops(flat, ds.root, 24, 0.1, 0.08, None)[0]) == 0
+
+
+def test_a_padded_crops_centre_is_the_crop_inference_cuts_and_its_target_the_same(rendered):
+    from deepword.word_format import open_dataset
+
+    ds = open_dataset(rendered)
+    records = ds.subset("train")
+    plain, plain_targets = split_crops(records, ds.root, 24, 0.1, 0.0, None)
+    padded, padded_targets = split_crops(records, ds.root, 24, 0.1, 0.0, None, pad=3)
+    assert padded.shape == (len(plain), 3, 30, 30)
+    assert padded_targets == pytest.approx(plain_targets, abs=1e-6)          # a direction does not see the margin
+    centre = padded[:, :, 3:27, 3:27].astype(float)
+    # the same scale, resampled on a grid a fraction of a pixel apart: close, and far closer than a window moved
+    moved = padded[:, :, 0:24, 0:24].astype(float)
+    assert np.abs(centre - plain).mean() < 0.25 * np.abs(moved - plain).mean()
+
+
+def test_the_shifted_window_is_a_random_translation_of_the_padded_crop():
+    b, size, pad = 64, 6, 2
+    # distinct values under 100, so that no brightness gain clips them
+    crops = (torch.arange(b * 3 * 10 * 10).reshape(b, 3, 10, 10) * 7919).remainder(97).add(1).to(torch.uint8)
+    targets = torch.tensor([[0.6, 0.8]]).repeat(b, 1)
+    x, y = augment(crops, targets, torch.Generator().manual_seed(0), size)
+    assert x.shape == (b, 3, size, size)
+    places = []
+    for i in range(b):
+        window = x[i].flip(-1) if y[i, 0] < 0 else x[i]                  # mirrored: the target's x negated
+        assert y[i].abs().tolist() == pytest.approx([0.6, 0.8])
+        for oy, ox in np.ndindex(2 * pad + 1, 2 * pad + 1):
+            src = crops[i, :, oy:oy + size, ox:ox + size].float()
+            gain = window[:, 0, 0] / src[:, 0, 0]                         # brightness x white balance, per channel
+            if torch.allclose(window, src * gain[:, None, None], rtol=1e-4):
+                places.append((oy, ox))
+                break
+        else:
+            pytest.fail(f"crop {i}: its window is no translation of the padded crop")
+    assert len(set(places)) > 10                                             # drawn all over the pad
+    plain, _ = augment(crops[:, :, :size, :size], targets, torch.Generator().manual_seed(0), size)
+    assert plain.shape == (b, 3, size, size)                                 # no pad: the crop as it is
 
 
 def test_the_loss_rewards_the_right_direction_and_grows_the_vector_with_certainty():
