@@ -39,8 +39,8 @@ def split_crops(records, root, size: int, margin: float, jitter: float, rng: np.
     jittered. With ``pad`` the crop reaches ``pad`` pixels further on each side at the same scale, so that its central
     ``size`` window is the crop a margin of ``margin`` gives (``augment`` moves that window); a direction in the crop
     does not depend on the margin (the box grows alike in width and height)."""
-    margin = ((1 + 2 * margin) * (size + 2 * pad) / size - 1) / 2
-    size += 2 * pad
+    if pad:
+        margin, size = ((1 + 2 * margin) * (size + 2 * pad) / size - 1) / 2, size + 2 * pad
     crops, targets = [], []
     for rec in records[:limit] if limit else records:
         facings = box_facings(rec)
@@ -158,7 +158,7 @@ def augment(crops, targets, gen, size: int | None = None):
     spare = crops.shape[-1] - (size or crops.shape[-1])
     if spare > 0:
         b, window = len(crops), torch.arange(size)
-        ox, oy = (torch.randint(0, spare + 1, (2, b), generator=gen))
+        ox, oy = torch.randint(0, spare + 1, (2, b), generator=gen)
         crops = crops[torch.arange(b)[:, None, None, None], torch.arange(3)[None, :, None, None],
                       (oy[:, None] + window)[:, None, :, None], (ox[:, None] + window)[:, None, None, :]]
     x, y = crops.to(torch.float32), targets.clone()

@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from deepword.facing import box_facings, record_facing, record_facing_accuracy
 from deepword.facing_crop import to_crop, to_image
 from deepword.inference.facing_net import OnnxFacing, vehicle_crops
+from deepword.relation_graph import crop_objects
 from deepword.word_format import difficulty_subsets, write_dataset_index, write_records
 from stages.facing.model import FacingNet, facing_loss
 from stages.facing.stage import CONFIG_FILE, WEIGHTS_FILE, augment, split_crops
@@ -83,13 +84,22 @@ def test_train_crops_come_from_the_3d_truth_once_as_labelled_and_once_jittered(r
     assert len(split_crops(flat, ds.root, 24, 0.1, 0.08, None)[0]) == 0
 
 
-def test_a_padded_crops_centre_is_the_crop_inference_cuts_and_its_target_the_same(rendered):
+def test_a_padded_crops_centre_is_the_crop_inference_cuts_and_its_target_the_same(rendered, monkeypatch):
     from deepword.word_format import open_dataset
 
     ds = open_dataset(rendered)
     records = ds.subset("train")
+    import stages.facing.stage as facing_stage
+
+    asked = []
+    monkeypatch.setattr(facing_stage, "crop_objects", lambda rgb, boxes, size, margin: asked.append((size, margin))
+                        or crop_objects(rgb, boxes, size, margin))
     plain, plain_targets = split_crops(records, ds.root, 24, 0.1, 0.0, None)
+    assert set(asked) == {(24, 0.1)}                                         # the margin inference cuts with, exactly
+    asked.clear()
     padded, padded_targets = split_crops(records, ds.root, 24, 0.1, 0.0, None, pad=3)
+    assert {size for size, _ in asked} == {30}
+    assert [margin for _, margin in asked] == pytest.approx([0.25] * len(asked))   # 1.2 x 30 / 24 = 1.5 boxes wide
     assert padded.shape == (len(plain), 3, 30, 30)
     assert padded_targets == pytest.approx(plain_targets, abs=1e-6)          # a direction does not see the margin
     centre = padded[:, :, 3:27, 3:27].astype(float)
