@@ -77,7 +77,10 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     ds = open_dataset(inputs["data"])
     size, margin = int(fc.input_size), float(fc.margin)
     rng = np.random.default_rng(seed)
-    pad = round(float(tc.get("shift", 0.0)) * size)   # absent (older configs): no shift
+    shift = float(tc.get("shift", 0.0))   # absent (older configs): no shift
+    if shift < 0:
+        raise ValueError(f"facing.train.shift: a share of the crop side, 0 or more (0: no shift), got {shift}")
+    pad = round(shift * size)
     train_x, train_y = split_crops(ds.subset("train"), ds.root, size, margin, float(tc.box_jitter), rng,
                                    tc.get("limit_train_images"), pad)
     val_x, val_y = split_crops(ds.subset("val"), ds.root, size, margin, 0.0, None)

@@ -132,6 +132,12 @@ def test_the_shifted_window_is_a_random_translation_of_the_padded_crop():
     assert plain.shape == (b, 3, size, size)                                 # no pad: the crop as it is
 
 
+def test_a_negative_shift_is_refused_before_any_crop_is_cut(rendered, tmp_path):
+    cfg = _stage_cfg(train={**FACING_CFG["train"], "shift": -0.1})
+    with pytest.raises(ValueError, match=r"facing.train.shift: .* got -0.1"):
+        run_facing(cfg, {"data": rendered}, tmp_path)
+
+
 def test_the_loss_rewards_the_right_direction_and_grows_the_vector_with_certainty():
     target = torch.tensor([[0.6, 0.8]])
     assert facing_loss(torch.tensor([[1.2, 1.6]]), target) < facing_loss(torch.tensor([[0.3, 0.4]]), target) \
