@@ -301,8 +301,7 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
     yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
     size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
     coef, off = shape.points()
-    # one size for all (a fit's candidates): the points once, (1, P, 3), not once per candidate
-    local = coef[None] * (size if len(size) == 1 else np.broadcast_to(size, (len(xy), 3)))[:, None, :] + off[None]
+    local = coef[None] * size[:, None, :] + off[None]   # (N, P, 3); (1, P, 3) for one size: the points once
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     world = np.stack(np.broadcast_arrays(xy[:, :1] + c * local[..., 0] - s * local[..., 1],
                                          xy[:, 1:] + s * local[..., 0] + c * local[..., 1], local[..., 2]),
@@ -626,7 +625,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             # one wheel of each of two vehicles: the vehicle is fitted from its box alone, and gives no context
             if not weak:
                 continue
-            box, evidence, vote, used = None, "box", 0.0, []
+            box = None
         if box is None:
             start = box_bottom_estimate(cam, vbox, prior)
             box, evidence, vote, used = start, "box", 0.0, []
