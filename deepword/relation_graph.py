@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -110,14 +111,20 @@ def normalised_boxes(xyxy: np.ndarray, width: float, height: float) -> np.ndarra
     return (np.asarray(xyxy, dtype=np.float64).reshape(-1, 4) / scale).astype(np.float32)
 
 
-def node_tensor(crops, coords):
+def node_tensor(crops, coords, channels_last: bool = False):
     """The S x S x 7 node input of docs/design.md §6, channels first: RGB in [0, 1] then four constant planes.
-    crops (..., 3, S, S) uint8 tensor, coords (..., 4) -> (..., 7, S, S) float32 tensor."""
+    crops (..., 3, S, S) uint8 tensor, coords (..., 4) -> (..., 7, S, S) float32 tensor. ``channels_last`` (crops
+    (K, 3, S, S)): the same values laid out NHWC, as the backbone trains, written in place rather than converted
+    after (the conversion was a twentieth of a relation training step)."""
     import torch
 
     rgb = crops.to(torch.float32) / 255.0
-    planes = coords.to(torch.float32)[..., None, None].expand(*coords.shape, *crops.shape[-2:])
-    return torch.cat([rgb, planes], dim=-3)
+    planes = coords.to(torch.float32)[..., None, None]
+    if channels_last:
+        out = torch.empty((len(crops), 7, *crops.shape[-2:]), device=crops.device, memory_format=torch.channels_last)
+        out[:, :3], out[:, 3:] = rgb, planes
+        return out
+    return torch.cat([rgb, planes.expand(*coords.shape, *crops.shape[-2:])], dim=-3)
 
 
 # --- adjacency, candidates, targets (vectorised per image) -----------------------------------------
@@ -284,10 +291,15 @@ def check_object_counts(records: Sequence[Record], max_objects: int) -> None:
 
 
 def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarray], cfg: InputConfig,
-                wheel_vehicle: PriorFn, wheel_wheel: PriorFn, min_box_px: float = 0.0) -> SplitInputs:
+                wheel_vehicle: PriorFn, wheel_wheel: PriorFn, min_box_px: float = 0.0, threads: int = 1) -> SplitInputs:
     """Graphs and targets of every record, padded to cfg.max_objects; the evaluated wheels are those whose
-    shorter box side is at least ``min_box_px`` (``eval.min_box_px``)."""
+    shorter box side is at least ``min_box_px`` (``eval.min_box_px``). ``threads`` images are decoded and cropped at
+    a time (OpenCV releases the GIL; decoding is most of the work): the same arrays in the same order."""
     check_object_counts(records, cfg.max_objects)
+
+    def graph(rec: Record) -> ImageGraph:   # the decoded image is dropped once its crops are cut
+        return build_graph(rec, load_rgb(rec), cfg, wheel_vehicle, wheel_wheel)
+
     n_img, n = len(records), cfg.max_objects
     coords = np.zeros((n_img, n, 4), dtype=np.float32)
     classes = np.full((n_img, n), PAD_CLASS, dtype=np.int8)
@@ -299,8 +311,9 @@ def build_split(records: Sequence[Record], load_rgb: Callable[[Record], np.ndarr
     role = np.full((n_img, n), -1, dtype=np.int8)
     evaluated = np.zeros((n_img, n), dtype=bool)
     crops, offsets = [], [0]
-    for i, rec in enumerate(records):
-        g = build_graph(rec, load_rgb(rec), cfg, wheel_vehicle, wheel_wheel)
+    with ThreadPoolExecutor(max(1, threads)) as pool:
+        graphs = list(pool.map(graph, records))
+    for i, (rec, g) in enumerate(zip(records, graphs, strict=True)):
         k = len(g.classes)
         crops.append(g.crops)
         offsets.append(offsets[-1] + k)

@@ -167,7 +167,7 @@ class RelationModule(L.LightningModule):
         """Backbone features of the valid nodes only (padding and masked objects are skipped, which also
         keeps them out of BatchNorm statistics); zeros elsewhere. Same values as ``model.embed``."""
         valid = batch["valid"].bool()
-        x = node_tensor(batch["crops"][valid], batch["coords"][valid]).contiguous(memory_format=self.backbone_format)
+        x = node_tensor(batch["crops"][valid], batch["coords"][valid], self.backbone_format == torch.channels_last)
         with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.backbone_bf16):
             feats = self.model.backbone(x).float()
         h = feats.new_zeros((*valid.shape, feats.shape[-1]))

@@ -50,8 +50,9 @@ def _limit(records: list, limit) -> list:
 
 
 def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, cache_dir: Path,
-                 min_box_px: float) -> SplitInputs:
-    """A split's graphs, from ``cache_dir/<name>.npz`` when an interrupted run already built them."""
+                 min_box_px: float, threads: int = 1) -> SplitInputs:
+    """A split's graphs, from ``cache_dir/<name>.npz`` when an interrupted run already built them; else built from
+    the images, ``threads`` at a time."""
     path = cache_dir / f"{name}.npz"
     meta = cache_dir / f"{name}.json"
     key = json.dumps({"inputs": asdict(in_cfg), "min_box_px": min_box_px, "images": [r.image for r in records]},
@@ -59,7 +60,7 @@ def split_inputs(name: str, records, root: Path, in_cfg: InputConfig, priors, ca
     if path.is_file() and meta.is_file() and meta.read_text() == key:
         return SplitInputs.load(path)
     split = build_split(records, lambda rec: load_image(root, rec), in_cfg, priors.wheel_vehicle, priors.wheel_wheel,
-                        min_box_px)
+                        min_box_px, threads)
     cache_dir.mkdir(parents=True, exist_ok=True)
     split.save(path)
     meta.write_text(key)
@@ -107,7 +108,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     cache_dir = out_dir / "inputs"
     min_box_px = float(rel.val_min_box_px)
     val = split_inputs("val", _limit(ds.subset("val"), rel.train.limit_val_images), ds.root, in_cfg, priors,
-                       cache_dir, min_box_px)
+                       cache_dir, min_box_px, int(rel.train.threads))
     seeds = [int(rel.train.seed) + k for k in range(n_members)]
     starts = start_states(inputs[INIT_INPUT], n_members) if "init" in cfg else [None] * n_members
     members = [train_member(cfg, ds, priors, in_cfg, model_cfg, val, seed, out_dir, k if n_members > 1 else None,
@@ -255,7 +256,7 @@ def train_member(cfg, ds, priors, in_cfg: InputConfig, model_cfg, val: SplitInpu
                                               seed, in_cfg.max_objects)
     # the simulated detections follow the seed, so each member crops its own training graphs
     train = split_inputs("train" if index is None else f"train_member{index}", train_records, ds.root, in_cfg,
-                         priors, out_dir / "inputs", float(rel.val_min_box_px))
+                         priors, out_dir / "inputs", float(rel.val_min_box_px), int(rel.train.threads))
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"relation: need train and val images, got {len(train)} train and {len(val)} val")
     module = new_module(taught=teachers is not None)

@@ -54,6 +54,15 @@ def test_node_tensor_is_rgb_in_unit_range_plus_four_constant_planes():
     assert torch.allclose(x[1, 3:, 4, 4], coords[1]) and torch.all(x[0, 5] == 0.3)
 
 
+def test_node_tensor_in_channels_last_holds_the_same_values_laid_out_nhwc():
+    g = torch.Generator().manual_seed(2)
+    crops = torch.randint(0, 256, (5, 3, 12, 10), generator=g, dtype=torch.uint8)
+    coords = torch.rand(5, 4, generator=g)
+    nhwc = node_tensor(crops, coords, channels_last=True)
+    assert nhwc.is_contiguous(memory_format=torch.channels_last) and not nhwc.is_contiguous()
+    assert torch.equal(nhwc, node_tensor(crops, coords))
+
+
 def _scene():
     # vehicle 0, vehicle 1, wheel 2, wheel 3 (wheel 3 tiny)
     xyxy = np.array([[10, 10, 110, 60], [100, 20, 200, 70], [20, 45, 35, 60], [90, 50, 95, 55]], dtype=float)
@@ -118,6 +127,17 @@ def test_split_is_padded_and_round_trips_through_npz(tmp_path):
     again = SplitInputs.load(tmp_path / "train.npz")
     for key in SplitInputs.__dataclass_fields__:
         assert np.array_equal(getattr(again, key), getattr(split, key)), key
+
+
+def test_a_split_built_several_images_at_a_time_is_the_split_built_one_at_a_time():
+    from deepword.relation_graph import build_split
+
+    cfg = InputConfig(input_size=16, max_objects=16)
+    recs = rd.records(7, seed=3)
+    alone = rd.split(recs, cfg)
+    threaded = build_split(recs, rd.render, cfg, rd.WHEEL_VEHICLE, rd.WHEEL_WHEEL, threads=3)
+    for key in SplitInputs.__dataclass_fields__:
+        assert np.array_equal(getattr(threaded, key), getattr(alone, key)), key
 
 
 def test_too_many_objects_fail_naming_the_image():

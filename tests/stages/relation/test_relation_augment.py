@@ -54,6 +54,40 @@ def test_each_effect_alone_changes_the_crops():
     assert not augment_crops(crops, AugmentConfig(prob=1.0, drop_pixels=1.0)).any()
 
 
+def test_crops_blurred_together_are_the_crops_blurred_one_at_a_time():
+    """The grouped blur (crops of one kernel radius in one convolution) computes what a convolution per crop does,
+    to the bit: the augmentation's output and random stream are those of blurring each crop on its own."""
+    import torch.nn.functional as F
+
+    from stages.relation.augment import _gaussian_blur, _gaussian_kernel
+
+    def one_crop(x, sigma):   # the definition: one crop's separable blur, edges replicated
+        k = _gaussian_kernel(sigma, x.dtype)
+        r, c = len(k) // 2, x.shape[1]
+        x = F.conv2d(F.pad(x, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1).repeat(c, 1, 1, 1), groups=c)
+        return F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1).repeat(c, 1, 1, 1), groups=c)
+
+    g = torch.Generator().manual_seed(4)
+    x = 255 * torch.rand(9, 3, 20, 24, generator=g)
+    sigmas = [0.4, 1.4, 0.6, 1.5, 0.45, 1.0, 0.9, 1.2, 0.5]   # radii 1, 3 and 2, interleaved
+    together = _gaussian_blur(x, sigmas)
+    assert len({len(_gaussian_kernel(s, x.dtype)) for s in sigmas}) == 3
+    for i, sigma in enumerate(sigmas):
+        assert torch.equal(together[i:i + 1], one_crop(x[i:i + 1], sigma)), i
+
+
+def test_the_zoom_grid_is_affine_grids_to_the_bit():
+    import torch.nn.functional as F
+
+    from stages.relation.augment import _zoom_grid
+
+    g = torch.Generator().manual_seed(5)
+    sx, sy = 0.8 + 0.4 * torch.rand(6, generator=g), 0.8 + 0.4 * torch.rand(6, generator=g)
+    theta = torch.zeros(6, 2, 3)
+    theta[:, 0, 0], theta[:, 1, 1] = sx, sy
+    assert torch.equal(_zoom_grid(sx, sy, 20, 24), F.affine_grid(theta, [6, 3, 20, 24], align_corners=False))
+
+
 def test_a_bad_augment_config_names_the_field():
     with pytest.raises(ValueError, match="relation.augment.grayscale"):
         configured(grayscale=1.5)
