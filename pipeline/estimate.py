@@ -77,7 +77,7 @@ def format_estimates(estimates: list[Estimate], budget_seconds: float | None, pr
     """The plan's estimate lines: one per stage with a hook, the total, and a warning when over budget."""
     if not estimates:
         return ""
-    width = max(len(e.stage) for e in estimates)
+    width = max(len("total"), *(len(e.stage) for e in estimates))   # the total line aligns with the stages
     lines = ["Estimated time of the stages to run, on this host:"]
     for e in estimates:
         figure = "?" if e.seconds is None else _duration(e.seconds)

@@ -1,4 +1,7 @@
-"""Plan-time estimates of the training stages' time on this host (the engine's ``estimate`` hook, pipeline/estimate.py).
+"""Plan-time estimates of the stages' time on this host (the engine's ``estimate`` hook, pipeline/estimate.py): the
+training stages by probes of their steps, the generator's stages (``data``, ``shift_data``) by rendering its first
+rig's frames (``data``: a rig's first frame builds its per-pixel tables, each frame is rendered and PNG-written as the
+stage does; the frames are shared among the stage's processes). The other stages have no estimate yet.
 
 Each probe builds the configured network, times a few real optimisation steps (forward, loss, backward, AdamW) at the
 configured batch size, precision (``trainer.precision``, resolved as the stage resolves it: bf16 where the host runs
@@ -477,3 +480,54 @@ def facing(cfg: DictConfig, context=None) -> dict | None:
                     "vehicles with 3D truth train",
             "hint": f"~{epoch_s:.0f} s an epoch: fewer epochs (facing.train.epochs=N, now {epochs}), "
                     "facing.train.box_jitter=0 (one copy of each vehicle), or a GPU (trainer=gpu)"}
+
+
+# The generator's first rig is probed: its first frame builds the rig's per-pixel tables (about a frame's rendering
+# again), the others render with them; at most this many frames (~1 s on a 2-core host)
+RENDER_PROBE_FRAMES = 4
+
+
+def data(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the data stage (``data=synword``): the generator's frames, each rendered and written as probed here
+    on the first rig's frames, shared among the stage's processes. None for a dataset read from disk or composed of
+    sources (``data.sources``)."""
+    return _rendering(_plain(cfg.data), int(cfg.seed), "data")
+
+
+def shift_data(cfg: DictConfig, context=None) -> dict | None:
+    """Seconds of the held-out test set's generation (``shift.data``), as ``data``."""
+    return _rendering(_plain(cfg.shift.data), int(cfg.seed), "shift.data")
+
+
+def _rendering(dcfg: dict, seed: int, key: str) -> dict | None:
+    import os
+
+    import cv2
+
+    from stages.data.synword import FrameGenerator
+
+    if dcfg.get("sources") is not None or dcfg.get("name") != "synword":
+        return None
+    frames, per_rig = int(dcfg["frames"]), int(dcfg["lens"]["frames_per_rig"])
+    probed = max(1, min(RENDER_PROBE_FRAMES, per_rig, frames))
+    started = time.perf_counter()
+    gen = FrameGenerator(dcfg, seed)
+    setup_s = time.perf_counter() - started
+    render_s, write_s = [], 0.0
+    for frame_id in range(probed):
+        t = time.perf_counter()
+        views = gen.render_frame(frame_id)
+        render_s.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        for _, img, _ in views:   # as the stage writes them (stages.data.synword.write_frame)
+            cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        write_s += time.perf_counter() - t
+    # a frame on average: the rig's first frame once per rig, the others as the probe's later frames rendered
+    later = statistics.mean(render_s[1:]) if probed > 1 else render_s[0]
+    frame_s = (render_s[0] + (per_rig - 1) * later) / per_rig + write_s / probed
+    workers = max(1, min(int(dcfg.get("workers") or os.cpu_count() or 1), frames))
+    seconds = setup_s + math.ceil(frames / workers) * frame_s
+    return {"seconds": seconds,
+            "note": f"{frames} frames x {1000 * frame_s:.0f} ms (rendered and written; a rig's tables "
+                    f"{1000 * max(0.0, render_s[0] - later):.0f} ms every {per_rig} frames) / {workers} processes",
+            "hint": f"fewer frames ({key}.frames=N, now {frames}) or more cores"}

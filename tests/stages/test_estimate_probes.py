@@ -21,6 +21,18 @@ def test_a_real_probe_times_steps_and_says_how(stage):
     assert "epochs" in out["note"] and "threads" in out["note"] and "epochs" in out["hint"]
 
 
+def test_the_generators_stages_are_estimated_from_rendered_frames():
+    cfg = _cfg("data.workers=2", "shift.data.frames=6")
+    out = estimate.data(cfg)
+    frames = int(cfg.data.frames)
+    assert math.isfinite(out["seconds"]) and out["seconds"] > 0
+    assert out["note"].startswith(f"{frames} frames x ") and out["note"].endswith("/ 2 processes")
+    assert "data.frames=N" in out["hint"]
+    assert "6 frames" in estimate.shift_data(cfg)["note"] and "shift.data.frames=N" in estimate.shift_data(cfg)["hint"]
+    # a dataset read from disk, or composed of sources, is not rendered: no estimate
+    assert estimate.data(_cfg("data=word", "data.root=/nowhere")) is None
+
+
 def test_the_estimate_is_steps_times_the_probed_step(monkeypatch):
     monkeypatch.setattr(estimate, "timed_steps", lambda step, sync=None: 0.5)  # every step and forward: 0.5 s
     monkeypatch.setattr(estimate, "_EPOCH_PROBES", {})   # no probe remembered from a real one

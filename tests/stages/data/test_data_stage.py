@@ -37,6 +37,25 @@ def test_parallel_generation_matches_serial(tmp_path):
         assert (tmp_path / "s" / r.image).read_bytes() == (tmp_path / "p" / r.image).read_bytes()
 
 
+def test_a_renderer_process_holds_opencv_and_openblas_to_one_thread(tmp_path):
+    """Two renderer processes on two cores: each one thread, else OpenBLAS's own threads oversubscribe the cores
+    (docs/results.md, "Where the time goes")."""
+    from threadpoolctl import threadpool_info
+
+    from stages.data import synword
+
+    cv2_threads = cv2.getNumThreads()
+    synword._init_worker(synword_cfg(frames=1, size=(160, 120)), 11, str(tmp_path))   # as the pool starts a process
+    try:
+        assert cv2.getNumThreads() == 1
+        blas = [pool for pool in threadpool_info() if pool["user_api"] == "blas"]
+        assert blas and all(pool["num_threads"] == 1 for pool in blas)
+    finally:
+        synword._WORKER.pop("blas").restore_original_limits()
+        synword._WORKER.clear()
+        cv2.setNumThreads(cv2_threads)
+
+
 def test_run_synword_smoke(tmp_path):
     cfg = OmegaConf.create({"data": synword_cfg(frames=5, size=(160, 120)), "seed": 3})
     metrics = run(cfg, {}, tmp_path)
