@@ -182,6 +182,14 @@ def _work(frame_id: int) -> list[Record]:
     return write_frame(_WORKER["gen"], frame_id, _WORKER["out"])
 
 
+PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]   # the generator's PNGs: the fastest level that compresses (writing is 14 % of a frame)
+
+
+def renderer_processes(workers: int | None, frames: int | None = None) -> int:
+    """The processes that render: ``workers`` (None: one per core), no more than ``frames``, at least one."""
+    return max(1, min(int(workers or os.cpu_count() or 1), frames or 1 << 30))
+
+
 def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Record]:
     """Render a frame, write its images, return the records worth keeping (>= 1 owner-member relation)."""
     kept = []
@@ -190,7 +198,7 @@ def write_frame(gen: FrameGenerator, frame_id: int, out_dir: Path) -> list[Recor
             continue
         path = out_dir / rec.image
         path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), PNG_PARAMS)
         kept.append(rec)
     return kept
 
@@ -212,7 +220,7 @@ class FrameWriter:
     def __init__(self, cfg: dict, seed: int, out_dir: Path, workers: int | None = None, most: int | None = None):
         DomainConfig.from_cfg(cfg.get("domain"))  # a bad config fails here, not in a pool initializer (which would hang)
         self.cfg, self.seed, self.out_dir = cfg, int(seed), Path(out_dir)
-        self.workers = max(1, min(int(workers or os.cpu_count() or 1), most or 1 << 30))
+        self.workers = renderer_processes(workers, most)
         self._gen: FrameGenerator | None = None
         self._pool = None
 

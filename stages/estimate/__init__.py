@@ -500,11 +500,9 @@ def shift_data(cfg: DictConfig, context=None) -> dict | None:
 
 
 def _rendering(dcfg: dict, seed: int, key: str) -> dict | None:
-    import os
-
     import cv2
 
-    from stages.data.synword import FrameGenerator
+    from stages.data.synword import PNG_PARAMS, FrameGenerator, renderer_processes
 
     if dcfg.get("sources") is not None or dcfg.get("name") != "synword":
         return None
@@ -520,12 +518,12 @@ def _rendering(dcfg: dict, seed: int, key: str) -> dict | None:
         render_s.append(time.perf_counter() - t)
         t = time.perf_counter()
         for _, img, _ in views:   # as the stage writes them (stages.data.synword.write_frame)
-            cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+            cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), PNG_PARAMS)
         write_s += time.perf_counter() - t
     # a frame on average: the rig's first frame once per rig, the others as the probe's later frames rendered
     later = statistics.mean(render_s[1:]) if probed > 1 else render_s[0]
     frame_s = (render_s[0] + (per_rig - 1) * later) / per_rig + write_s / probed
-    workers = max(1, min(int(dcfg.get("workers") or os.cpu_count() or 1), frames))
+    workers = renderer_processes(dcfg.get("workers"), frames)
     seconds = setup_s + math.ceil(frames / workers) * frame_s
     return {"seconds": seconds,
             "note": f"{frames} frames x {1000 * frame_s:.0f} ms (rendered and written; a rig's tables "
