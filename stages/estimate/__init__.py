@@ -1,7 +1,8 @@
 """Plan-time estimates of the stages' time on this host (the engine's ``estimate`` hook, pipeline/estimate.py): the
 training stages by probes of their steps, the generator's stages (``data``, ``shift_data``) by rendering its first
 rig's frames (``data``: a rig's first frame builds its per-pixel tables, each frame is rendered and PNG-written as the
-stage does; the frames are shared among the stage's processes). The other stages have no estimate yet.
+stage does; the frames are shared among the stage's processes). The stages that train nothing (priors, export,
+evaluate, bev) are estimated in ``stages.estimate.after_training``.
 
 Each probe builds the configured network, times a few real optimisation steps (forward, loss, backward, AdamW) at the
 configured batch size, precision (``trainer.precision``, resolved as the stage resolves it: bf16 where the host runs

@@ -6,6 +6,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import stages.estimate as estimate
+import stages.estimate.after_training as after_training
 from tests.pipeline.test_runmode import CONF
 
 
@@ -121,3 +122,51 @@ def test_the_sizing_and_the_estimate_of_one_plan_share_one_probe(monkeypatch):
     assert len(calls) == 1
     estimate.detector(_cfg(f"detector.epochs={sized}", "detector.batch_size=2"))
     assert len(calls) == 2, "another configuration: probed again"
+
+
+@pytest.mark.parametrize("stage", ["priors", "export", "evaluate", "bev"])
+def test_the_stages_after_training_are_estimated_from_calls_timed_here(stage):
+    out = getattr(after_training, stage)(_cfg())
+    assert math.isfinite(out["seconds"]) and out["seconds"] > 0
+    assert out["note"] and out["hint"]
+
+
+def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
+    units = {"threads": 2, "relation": 0.001, "relation_eager": 0.004, "relation_export": 1.0, "detector": 0.01,
+             "detector_eager": 0.02, "detector_export": 0.5, "decode": 0.003}
+    monkeypatch.setattr(after_training, "unit_calls", lambda cfg: units)
+    cfg = _cfg("eval.fit_images=10")
+    test, train = estimate.split_images(cfg, "test"), estimate.split_images(cfg, "train")
+    held_out = int(cfg.shift.data.frames) * 4
+    # every test image of both domains: the detector, the relation model for 2 box sources x 2 rows (deepword and
+    # its INT8 twin) on the image and its mirror, three reads, the scoring; the baselines fitted on 10 train images
+    per_image = 0.01 + 2 * 2 * (2 * 0.001 + after_training.GRAPH_S) + 3 * 0.003 + after_training.EVAL_OTHER_PER_IMAGE_S
+    fit = min(10, train) * after_training.EVAL_FIT_PER_TRAIN_IMAGE_S
+    assert after_training.evaluate(cfg)["seconds"] == pytest.approx(fit + (test + held_out) * per_image)
+    in_domain = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[shift_data]"))["seconds"]
+    assert in_domain == pytest.approx(fit + test * per_image)
+    # without a detector: no detected boxes, so neither the detector's calls nor that source's relation calls
+    no_detector = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[detector]"))["seconds"]
+    per_image_gt = 2 * (2 * 0.001 + after_training.GRAPH_S) + 3 * 0.003 + after_training.EVAL_OTHER_PER_IMAGE_S
+    assert no_detector == pytest.approx(fit + (test + held_out) * per_image_gt)
+
+    # export: the latency tables grow with their runs; without a detector no operating point is searched
+    runs = [after_training.export(_cfg(f"export.latency.runs={n}", "export.latency.warmup=0"))["seconds"]
+            for n in (10, 20)]
+    relation_row = after_training.LATENCY_RELATION_CALLS * 0.001 + after_training.LATENCY_RELATION_EAGER_CALLS * 0.004
+    assert runs[1] - runs[0] == pytest.approx(10 * (relation_row + 11 * 0.01 + 0.02))
+    with_detector = after_training.export(cfg)
+    without = after_training.export(_cfg("pipeline.skip=[detector]"))
+    assert "operating point" in with_detector["note"] and "operating point" not in without["note"]
+    assert without["seconds"] < with_detector["seconds"]
+
+    # bev: the fits shared among processes, at most one per MIN_FRAMES_PER_PROCESS frames
+    monkeypatch.setattr(after_training, "_no_wheel_fit_seconds", lambda cfg: 0.5)
+    big = ("data.frames=200", "shift.data.frames=100")
+    one, two = (after_training.bev(_cfg(*big, f"bev.workers={w}", "pipeline.skip=[shift_data]"))["seconds"]
+                for w in (1, 2))
+    fits_one = estimate.split_images(_cfg(*big), "test") * 2 * after_training.FITS_PER_IMAGE * 0.5
+    assert one - two == pytest.approx(fits_one / 2 - after_training.PROCESS_START_S)
+    smoke_two = after_training.bev(_cfg("bev.workers=2", "pipeline.skip=[shift_data]"))["seconds"]
+    smoke_one = after_training.bev(_cfg("bev.workers=1", "pipeline.skip=[shift_data]"))["seconds"]
+    assert smoke_two == pytest.approx(smoke_one), "a smoke test split of a few frames is fitted in one process"
