@@ -264,6 +264,8 @@ def evaluate(cfg: DictConfig, context=None) -> dict | None:
     and held-out test image through the exported detector (detected boxes) and the relation model for each
     DeepWORD row and box source (twice with ``relation.decode.flip_average``: the image and its mirror), decoded
     about IMAGE_READS times, and scored."""
+    if split_images(cfg, "test") is None:   # a dataset read from disk: its images are counted once the data stage ran
+        return None
     test = _images(cfg, "test") + (_test_images(OmegaConf.select(cfg, "shift.data")) if _in_run(cfg, "shift_data")
                                    else 0)
     if not test:
@@ -292,16 +294,19 @@ FITS_PER_IMAGE = 2.4 + 2.6 * 0.39
 PROCESS_START_S = 2.5          # a spawned fitting process before it fits (bev.workers)
 FACING_PER_IMAGE_S = 0.010     # the facing network on an image's vehicle boxes, per box source (onnxruntime)
 SCORING_PER_FRAME_S = 0.0085   # matching and nuScenes-style scores of a frame's fused footprints, per (boxes, method)
-FIGURE_S = 0.25                # a top-view figure
+FIGURE_S = 0.04                # a top-view figure
+PRIOR_FIT_PER_IMAGE_S = 0.002  # the footprint prior, per train image it is fitted on (bev.fit_images)
 
 
 def bev(cfg: DictConfig, context=None) -> dict | None:
     """Seconds of the bev stage: the footprint fits of every in-domain and held-out test image for each box source,
     shared among ``bev.workers`` processes (one a frame's fits, at most one per 8 frames), timed here as no-wheel
     fits; the facing network on each vehicle box; scoring each frame for every (box source, method) and the
-    top-view figures."""
+    top-view figures, after fitting the footprint prior on train."""
     from stages.bev.fitting import MIN_FRAMES_PER_PROCESS
 
+    if split_images(cfg, "test") is None:
+        return None
     fit_s = _no_wheel_fit_seconds(cfg)
     cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
     n_cameras = sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
@@ -314,16 +319,18 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
     u, bc = unit_calls(cfg), cfg.bev
     sources = [s for s in bc.box_sources if s != "detected" or _in_run(cfg, "detector")]
     workers = int(bc.workers or os.cpu_count() or 1)
-    fits = 0.0
+    fits, most = 0.0, 1
     for n in domains:   # each domain's frames shared among the processes separately
         frames = math.ceil(n / max(1, n_cameras))
         processes = max(1, min(workers, frames // MIN_FRAMES_PER_PROCESS))
+        most = max(most, processes)
         fits += n * len(sources) * FITS_PER_IMAGE * fit_s / processes + (PROCESS_START_S if processes > 1 else 0.0)
     jobs = len(sources) * (len(bc.methods) + 1)   # + box_bottom
     rest = images * len(sources) * (u["decode"] + FACING_PER_IMAGE_S) \
-        + images / max(1, n_cameras) * jobs * SCORING_PER_FRAME_S + len(domains) * int(bc.figures) * 2 * FIGURE_S
+        + images / max(1, n_cameras) * jobs * SCORING_PER_FRAME_S + len(domains) * int(bc.figures) * FIGURE_S \
+        + min(int(bc.fit_images), _images(cfg, "train")) * PRIOR_FIT_PER_IMAGE_S
     return {"seconds": fits + rest,
             "note": f"{images} test images x {len(sources)} box sources x ~{FITS_PER_IMAGE:.1f} fits of "
-                    f"{1000 * fit_s:.0f} ms over {workers} processes ({fits:.0f} s), facing votes and scoring "
+                    f"{1000 * fit_s:.0f} ms in {most} process{'es' if most > 1 else ''} ({fits:.0f} s), facing votes and scoring "
                     f"({rest:.0f} s)",
             "hint": "fewer relation methods (bev.methods) or box sources (bev.box_sources), more cores"}
