@@ -89,7 +89,6 @@ def _timed_once(call) -> float:
 
 
 def _time_unit_calls(cfg: DictConfig) -> dict:
-    import cv2
     import torch
 
     from deepword.inference.runtime import DETECTOR_INPUT, RELATION_INPUTS, ort_session
@@ -128,14 +127,21 @@ def _time_unit_calls(cfg: DictConfig) -> dict:
             units["detector"] = timed_steps(lambda: session.run(None, {DETECTOR_INPUT: x}))
             with torch.inference_mode():
                 units["detector_eager"] = timed_steps(lambda: det_net(torch.from_numpy(x)))
+    units["decode"] = decode_seconds(cfg)
+    return units
+
+
+def decode_seconds(cfg: DictConfig) -> float:
+    """Seconds to decode one PNG of the data's image size: a rendered-like picture (smooth shading and edges) rather
+    than noise, which PNG cannot compress."""
+    import cv2
+
     width, height = (int(v) for v in (_plain(OmegaConf.select(cfg, "data.image_size")) or (640, 480)))
-    # a rendered-like picture (smooth shading and edges) rather than noise, which PNG cannot compress
     yy, xx = np.mgrid[0:height, 0:width]
     picture = np.stack([xx * 255 // width, yy * 255 // height, (xx // 40 + yy // 40) % 2 * 200],
                        axis=-1).astype(np.uint8)
     png = cv2.imencode(".png", picture)[1]
-    units["decode"] = timed_steps(lambda: cv2.imdecode(png, cv2.IMREAD_COLOR))
-    return units
+    return timed_steps(lambda: cv2.imdecode(png, cv2.IMREAD_COLOR))
 
 
 # -- priors ---------------------------------------------------------------------------------------------------
@@ -316,7 +322,7 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
     images = sum(domains)
     if fit_s is None or not images:
         return None
-    u, bc = unit_calls(cfg), cfg.bev
+    bc, decode_s = cfg.bev, decode_seconds(cfg)   # no network call: the unit calls' exports are not needed
     sources = [s for s in bc.box_sources if s != "detected" or _in_run(cfg, "detector")]
     workers = int(bc.workers or os.cpu_count() or 1)
     fits, most = 0.0, 1
@@ -326,7 +332,7 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
         most = max(most, processes)
         fits += n * len(sources) * FITS_PER_IMAGE * fit_s / processes + (PROCESS_START_S if processes > 1 else 0.0)
     jobs = len(sources) * (len(bc.methods) + 1)   # + box_bottom
-    rest = images * len(sources) * (u["decode"] + FACING_PER_IMAGE_S) \
+    rest = images * len(sources) * (decode_s + FACING_PER_IMAGE_S) \
         + images / max(1, n_cameras) * jobs * SCORING_PER_FRAME_S + len(domains) * int(bc.figures) * FIGURE_S \
         + min(int(bc.fit_images), _images(cfg, "train")) * PRIOR_FIT_PER_IMAGE_S
     return {"seconds": fits + rest,

@@ -162,6 +162,7 @@ def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
 
     # bev: the fits shared among processes, at most one per MIN_FRAMES_PER_PROCESS frames
     monkeypatch.setattr(after_training, "_no_wheel_fit_seconds", lambda cfg: 0.5)
+    monkeypatch.setattr(after_training, "decode_seconds", lambda cfg: 0.003)
     big = ("data.frames=200", "shift.data.frames=100")
     one, two = (after_training.bev(_cfg(*big, f"bev.workers={w}", "pipeline.skip=[shift_data]"))["seconds"]
                 for w in (1, 2))
