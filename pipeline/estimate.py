@@ -90,7 +90,7 @@ def format_estimates(estimates: list[Estimate], budget_seconds: float | None, pr
     if budget_seconds is not None and total > budget_seconds:
         slowest = max(known, key=lambda e: e.seconds)
         where = f" of profile {profile}" if profile else ""
-        lines.append(f"WARNING: this host is slow for this configuration: ~{_duration(total)} of training, over the "
+        lines.append(f"WARNING: this host is slow for this configuration: ~{_duration(total)} for the stages to run, over the "
                      f"{_duration(budget_seconds)} budget{where} (pipeline.time_budget_minutes). The slowest is "
                      f"'{slowest.stage}' (~{_duration(slowest.seconds)})"
                      + (f": {slowest.hint}" if slowest.hint else "") + ".")
