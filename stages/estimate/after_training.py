@@ -40,17 +40,6 @@ def _images(cfg: DictConfig, split: str) -> int:
     return split_images(cfg, split) or 0
 
 
-def _heldout_images(cfg: DictConfig) -> int:
-    """The held-out test set's images (``shift.data``: every frame is test), 0 without one in the run."""
-    shift = OmegaConf.select(cfg, "shift.data", default=None)
-    if shift is None or "shift_data" in (OmegaConf.select(cfg, "pipeline.skip", default=None) or []):
-        return 0
-    cameras = _plain(shift.get("cameras")) or {}
-    frames = shift.get("frames")
-    n_cameras = sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
-    return int(frames) * n_cameras if frames is not None else 0
-
-
 def _test_images(data: DictConfig | None) -> int:
     """frames x cameras x the test share of a data config (``data`` or ``shift.data``); 0 where it names no frames."""
     if data is None:
@@ -154,14 +143,14 @@ def priors(cfg: DictConfig, context=None) -> dict | None:
     """Seconds of the priors stage: every train image's candidate pairs and their ratios, and a mixture fit per
     component count for the true pairs and the non-pairs of both pair types (each on the train split's pairs, at
     most ``priors.max_fit_samples``), the four fits run here on as many synthetic log-ratios."""
-    import importlib
-
     train = split_images(cfg, "train")
     if train is None:
         return None
     started = time.perf_counter()
-    fit_mixture_bic = importlib.import_module("deepword.priors").fit_mixture_bic
-    importlib.import_module("sklearn.mixture")   # what the stage's first fit pays (nothing when already loaded)
+    import sklearn.mixture  # noqa: F401  (timed: what the stage's first fit pays; nothing when already loaded)
+
+    from deepword.priors import fit_mixture_bic
+
     seconds = time.perf_counter() - started + train * RATIOS_PER_IMAGE_S
     pc = _plain(cfg.priors)
     limit = int(pc["max_fit_samples"])
