@@ -44,12 +44,17 @@ def _plain(node):
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
+def camera_count(cfg: DictConfig) -> int:
+    """The cameras of the data config's rig (``data.cameras``' entries with intrinsics)."""
+    cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
+    return sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
+
+
 def split_images(cfg: DictConfig, split: str) -> int | None:
     """frames x cameras x the split's share, from the data config; None where it names no frames."""
     frames = OmegaConf.select(cfg, "data.frames", default=None)
-    cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
     share = OmegaConf.select(cfg, f"data.split.{split}", default=None)
-    n_cameras = sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
+    n_cameras = camera_count(cfg)
     if frames is None or share is None or n_cameras == 0:
         return None
     return int(round(int(frames) * float(share))) * n_cameras

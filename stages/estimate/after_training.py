@@ -30,7 +30,15 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from stages.estimate import MEAN_OBJECTS, VEHICLE_SHARE, _plain, _threads, split_images, timed_steps
+from stages.estimate import (
+    MEAN_OBJECTS,
+    VEHICLE_SHARE,
+    _plain,
+    _threads,
+    camera_count,
+    split_images,
+    timed_steps,
+)
 
 WHEELS = MEAN_OBJECTS * (1 - VEHICLE_SHARE)   # an image's wheels, on average
 VEHICLES = MEAN_OBJECTS * VEHICLE_SHARE
@@ -173,19 +181,16 @@ def _no_wheel_fit_seconds(cfg: DictConfig) -> float | None:
     ``fit_free``): a car 7 m ahead of and 2.5 m beside the configured front camera, fitted to its own silhouette's box
     from a start 1 m off, its axis searched along the viewing direction (no neighbour's axis); None without a camera
     in the data config."""
-    from deepword.cameras import Camera, kannala_brandt_lens, mount_rotation
     from deepword.footprint import FootprintPrior, fit_free, fit_sized, silhouette_boxes
     from deepword.format_3d import Box3D
+    from stages.data.camera import nominal_camera
 
     cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
     front = next((v for v in cameras.values() if isinstance(v, dict) and "K" in v), None)
     if front is None:
         return None
     size = cameras.get("reference_size") or [640, 480]
-    k = front["K"]
-    cam = Camera("probe", kannala_brandt_lens(k["fx"], k["fy"], k["cx"], k["cy"], *front["D"]), int(size[0]),
-                 int(size[1]), mount_rotation(front.get("yaw_deg", 0.0), front.get("pitch_deg", 0.0)),
-                 np.asarray(front["position"], dtype=np.float64), float(front.get("fov_deg", 190.0)))
+    cam = nominal_camera("probe", front, int(size[0]), int(size[1]), size)
     prior = FootprintPrior(width=1.8, length=4.4, wheelbase=2.7, length_slope=1.2, length_offset=1.2,
                            track_inset=0.15, contact_shift=0.1, box_shift=0.5)
     centre, yaw = np.array([[cam.translation[0] + 7.0, 2.5]]), np.array([0.4])
@@ -303,8 +308,7 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
     if split_images(cfg, "test") is None:
         return None
     fit_s = _no_wheel_fit_seconds(cfg)
-    cameras = _plain(OmegaConf.select(cfg, "data.cameras", default=None)) or {}
-    n_cameras = sum(1 for v in cameras.values() if isinstance(v, dict) and "K" in v)
+    n_cameras = camera_count(cfg)
     domains = [_images(cfg, "test")]
     if _in_run(cfg, "shift_data"):
         domains.append(_test_images(OmegaConf.select(cfg, "shift.data")))
