@@ -295,8 +295,9 @@ def _shape_points(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
 def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: Shape) -> np.ndarray:
     """(N, 4) image boxes (box coordinates, clipped to the image) of vehicles of ``shape`` and ``size`` (length,
     width, height; (3,) or (N, 3)) standing at ground centres ``xy`` (N, 2) heading ``yaw`` (N,): the bbox of the
-    projected edge points, a point beyond the field of view moved onto its border (where the image of a half-seen
-    vehicle ends)."""
+    projected edge points within the field of view and of the points where an edge leaves it (``_fov_crossings``:
+    where the image of a half-seen vehicle ends, on the border of the lens' image circle). A vehicle wholly beyond
+    the field of view is the bbox of its points moved onto that border."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
     size = np.asarray(size, dtype=np.float64).reshape(-1, 3)
@@ -309,6 +310,65 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
     pc = cam.to_cam(world)
     chi = np.hypot(pc[:, 0], pc[:, 1])
     theta = np.arctan2(chi, pc[:, 2])   # the lens' own angle too (project_polar): computed once
+    n, points = len(xy), len(pc) // max(len(xy), 1)
+    keep = None
+    if (theta > cam.theta_max).any():
+        crossings, crossed = _fov_crossings(cam, pc.reshape(n, points, 3), theta.reshape(n, points))
+        keep = np.concatenate([theta.reshape(n, points) <= cam.theta_max, crossed], axis=1)
+        keep[~keep.any(axis=1), :points] = True   # wholly beyond the field of view: its points, moved onto the border
+        pc = np.concatenate([pc.reshape(n, points, 3), crossings], axis=1).reshape(-1, 3)
+        chi = np.hypot(pc[:, 0], pc[:, 1])
+        theta = np.arctan2(chi, pc[:, 2])
+        _onto_border(cam, pc, chi, theta)
+    # (2, N, P): u and v each with a vehicle's points contiguous, so that the bbox is four row reductions (a fit asks
+    # for thousands of silhouettes; reducing (N, P, 2) over its middle axis took a fifth of the bev stage)
+    uv = np.ascontiguousarray(cam.lens.project_polar(pc, chi, theta).T).reshape(2, n, -1) - BOX_TO_IMAGE
+    if keep is None:
+        boxes = np.concatenate([uv.min(axis=2).T, uv.max(axis=2).T], axis=1)
+    else:
+        boxes = np.concatenate([np.where(keep, uv, np.inf).min(axis=2).T, np.where(keep, uv, -np.inf).max(axis=2).T],
+                               axis=1)
+    return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
+
+
+_CROSSING_BISECTIONS = 10   # a crossing within 1/1024 of its quarter edge (~1 mm of a 5 m car's side)
+
+
+def _fov_crossings(cam: Camera, pc: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the silhouette's edges cross the border of the field of view: for vehicles' camera-frame points ``pc``
+    (N, P, 3) (the edge points of ``Shape.points``, each edge ``_EDGE_STEPS`` long, then the four wheel points) and
+    their angles ``theta`` off the axis (N, P), the point of each step of an edge whose ends lie either side of
+    ``theta_max`` (bisection) and whether it does: ((N, S, 3), (N, S)) over every step S.
+
+    Why not move a point beyond the border onto it along its own azimuth: a vehicle cut by the image circle is seen
+    up to where its edges meet the border, while the azimuths of the parts beyond can run far along the circle. Moved
+    there, the bottom of a car at the side of a fisheye's circle stood 50-100 px below its seen box, and a fit
+    placed it metres too far away to shrink its image."""
+    steps = len(_EDGE_STEPS)
+    n, points = theta.shape
+    edges = (points - 4) // steps
+    ends = pc[:, :edges * steps].reshape(n, edges, steps, 3)
+    angle = theta[:, :edges * steps].reshape(n, edges, steps)
+    inside = angle <= cam.theta_max
+    crossed = inside[:, :, :-1] != inside[:, :, 1:]
+    a, b = ends[:, :, :-1][crossed], ends[:, :, 1:][crossed]   # (C, 3) each: the two ends of each crossing step
+    a_in = inside[:, :, :-1][crossed][:, None]
+    inner, step = np.where(a_in, a, b), np.where(a_in, b - a, a - b)   # from the inside end towards the outside one
+    lo, hi = np.zeros((len(a), 1)), np.ones((len(a), 1))     # lo: on the inside end's side, hi: beyond
+    cos_t, sin_t = math.cos(cam.theta_max), math.sin(cam.theta_max)
+    for _ in range(_CROSSING_BISECTIONS):
+        mid = (lo + hi) / 2
+        p = inner + mid * step
+        beyond = (p[:, 2] * sin_t < np.hypot(p[:, 0], p[:, 1]) * cos_t)[:, None]   # its angle off the axis > theta_max
+        lo, hi = np.where(beyond, lo, mid), np.where(beyond, mid, hi)
+    out = np.zeros((n, edges, steps - 1, 3))
+    out[crossed] = inner + lo * step
+    return out.reshape(n, -1, 3), crossed.reshape(n, -1)
+
+
+def _onto_border(cam: Camera, pc: np.ndarray, chi: np.ndarray, theta: np.ndarray) -> None:
+    """Camera-frame points beyond the field of view moved onto its border along their azimuth, in place (``chi``
+    and ``theta`` with them)."""
     beyond = np.flatnonzero(theta > cam.theta_max)
     if len(beyond):
         tm = cam.theta_max
@@ -317,11 +377,6 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
                               axis=1)
         chi[beyond] = np.hypot(pc[beyond, 0], pc[beyond, 1])
         theta[beyond] = np.arctan2(chi[beyond], pc[beyond, 2])
-    # (2, N, P): u and v each with a vehicle's points contiguous, so that the bbox is four row reductions (a fit asks
-    # for thousands of silhouettes; reducing (N, P, 2) over its middle axis took a fifth of the bev stage)
-    uv = np.ascontiguousarray(cam.lens.project_polar(pc, chi, theta).T).reshape(2, len(xy), -1) - BOX_TO_IMAGE
-    boxes = np.concatenate([uv.min(axis=2).T, uv.max(axis=2).T], axis=1)
-    return np.clip(boxes, 0.0, [cam.width, cam.height, cam.width, cam.height])
 
 
 def silhouette_cost(pred: np.ndarray, seen: np.ndarray, edges: list[int] | None = None) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""The bev stage's footprint fitting: a silhouette's box is the bbox of its projected edge points, and spreading the
-frames over worker processes changes no footprint."""
+"""The bev stage's footprint fitting: a silhouette's box is the bbox of its projected edge points within the field
+of view, and spreading the frames over worker processes changes no footprint."""
 
 import math
 from pathlib import Path
@@ -18,28 +18,66 @@ from tests.stages.bev.test_bev import PRIOR, _camera
 CONF = Path(__file__).resolve().parents[3] / "conf"
 
 
-def test_silhouette_boxes_are_the_bbox_of_each_vehicles_projected_points():
+def _world_points(shape_points, size, xy, yaw):
+    coef, off = shape_points
+    local = coef * size + off
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.stack([xy[0] + c * local[:, 0] - s * local[:, 1], xy[1] + s * local[:, 0] + c * local[:, 1],
+                     local[:, 2]], axis=1)
+
+
+def _dense_shape_points(steps: int):
+    """The silhouette's edge points at ``steps`` points an edge instead of ``_EDGE_STEPS``'s five."""
+    import deepword.footprint as footprint
+    kept = footprint._EDGE_STEPS
+    try:
+        footprint._EDGE_STEPS = tuple(np.linspace(0.0, 1.0, steps))
+        return footprint._shape_points.__wrapped__(PRIOR.shape)
+    finally:
+        footprint._EDGE_STEPS = kept
+
+
+def test_silhouette_boxes_are_the_bbox_of_each_vehicles_projected_points_within_the_field_of_view():
+    """Whole vehicles: the bbox of the projected edge points. Vehicles the image circle cuts: the bbox of what is
+    inside it, where a dense sampling of the edges (400 points an edge) puts it, within the curvature that five
+    points an edge miss; radially moving the points beyond the border onto it (the old model) missed it by up to
+    hundreds of pixels. Vehicles wholly beyond it: their points moved onto the border."""
     cam = _camera()
     rng = np.random.default_rng(0)
-    xy = rng.uniform(-6, 6, (40, 2)) + [0.0, 6.0]
-    yaw = rng.uniform(-math.pi, math.pi, 40)
+    # around the camera, 3-9 m off (a closer vehicle would stand where the ego does)
+    bearing, reach = rng.uniform(-math.pi, math.pi, 300), rng.uniform(3.0, 9.0, 300)
+    xy = cam.translation[:2] + reach[:, None] * np.c_[np.cos(bearing), np.sin(bearing)]
+    yaw = rng.uniform(-math.pi, math.pi, 300)
     size = _size(PRIOR, 1.3)
     boxes = silhouette_boxes(cam, xy, yaw, size, PRIOR.shape)
-    coef, off = PRIOR.shape.points()
+    dense = _dense_shape_points(401)
+    limits = [cam.width, cam.height, cam.width, cam.height]
+    kinds = {"whole": 0, "cut": 0, "beyond": 0}
     for i in range(len(xy)):
-        local = coef * size + off
-        c, s = math.cos(yaw[i]), math.sin(yaw[i])
-        world = np.stack([xy[i, 0] + c * local[:, 0] - s * local[:, 1],
-                          xy[i, 1] + s * local[:, 0] + c * local[:, 1], local[:, 2]], axis=1)
-        pc = cam.to_cam(world)
+        pc = cam.to_cam(_world_points(PRIOR.shape.points(), size, xy[i], yaw[i]))
         chi = np.hypot(pc[:, 0], pc[:, 1])
-        out = np.arctan2(chi, pc[:, 2]) > cam.theta_max
-        pc[out] = np.c_[pc[out, :2] * (math.sin(cam.theta_max) / chi[out, None]),
-                        np.full(out.sum(), math.cos(cam.theta_max))]
-        uv = cam.project_cam(pc) - BOX_TO_IMAGE
-        want = np.clip(np.r_[uv.min(0), uv.max(0)], 0.0, [cam.width, cam.height, cam.width, cam.height])
-        np.testing.assert_allclose(boxes[i], want, rtol=0, atol=1e-9)
-    assert (boxes[:, 2] > boxes[:, 0]).any()
+        inside = np.arctan2(chi, pc[:, 2]) <= cam.theta_max
+        if inside.all():
+            kinds["whole"] += 1
+            uv = cam.project_cam(pc) - BOX_TO_IMAGE
+            want = np.clip(np.r_[uv.min(0), uv.max(0)], 0.0, limits)
+            np.testing.assert_allclose(boxes[i], want, rtol=0, atol=1e-9)
+            continue
+        pd = cam.to_cam(_world_points(dense, size, xy[i], yaw[i]))
+        seen = np.arctan2(np.hypot(pd[:, 0], pd[:, 1]), pd[:, 2]) <= cam.theta_max
+        if seen.any():
+            kinds["cut"] += 1
+            uv = cam.project_cam(pd[seen]) - BOX_TO_IMAGE
+            want = np.clip(np.r_[uv.min(0), uv.max(0)], 0.0, limits)
+            np.testing.assert_allclose(boxes[i], want, rtol=0, atol=4.0)
+        elif not inside.any():
+            kinds["beyond"] += 1
+            out = ~inside
+            pc[out] = np.c_[pc[out, :2] * (math.sin(cam.theta_max) / chi[out, None]),
+                            np.full(out.sum(), math.cos(cam.theta_max))]
+            uv = cam.project_cam(pc) - BOX_TO_IMAGE
+            np.testing.assert_allclose(boxes[i], np.clip(np.r_[uv.min(0), uv.max(0)], 0.0, limits), rtol=0, atol=1e-9)
+    assert min(kinds.values()) >= 10, kinds
 
 
 def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path, capsys):
