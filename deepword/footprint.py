@@ -277,6 +277,9 @@ class Shape:
         return _shape_points(self)
 
 
+_WHEEL_POINTS = 4   # the silhouette's points after its edges' (``_shape_points``): each wheel's lowest point
+
+
 @functools.cache
 def _shape_points(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
     """``Shape.points``, computed once per shape (shapes are frozen and few)."""
@@ -286,6 +289,7 @@ def _shape_points(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
     half = shape.wheelbase / 2
     wheels = (np.array([[sx * half, sy * 0.5, 0.0] for sx in (1, -1) for sy in (1, -1)]),
               np.array([[0.0, -sy * 0.1, 0.0] for _ in (1, -1) for sy in (1, -1)]))
+    assert len(wheels[0]) == _WHEEL_POINTS
     coef = np.concatenate([lower[0], cabin[0], wheels[0]])
     off = np.concatenate([lower[1], cabin[1], wheels[1]])
     coef.flags.writeable = off.flags.writeable = False
@@ -346,7 +350,7 @@ def _fov_crossings(cam: Camera, pc: np.ndarray, theta: np.ndarray) -> tuple[np.n
     placed it metres too far away to shrink its image."""
     steps = len(_EDGE_STEPS)
     n, points = theta.shape
-    edges = (points - 4) // steps
+    edges = (points - _WHEEL_POINTS) // steps
     ends = pc[:, :edges * steps].reshape(n, edges, steps, 3)
     angle = theta[:, :edges * steps].reshape(n, edges, steps)
     inside = angle <= cam.theta_max
