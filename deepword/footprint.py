@@ -960,11 +960,11 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     """Group estimates of one frame whose centres lie within ``radius_m`` of a group's strongest estimate, along a
     longer one's axis up to half the difference in length further (``same_vehicle``: the ends of a bus) (strongest
     evidence first, then the camera that saw the vehicle nearest), never two of one image's vehicle boxes
-    (``two_boxes_of_one_image``); each group -> one footprint,
-    the mean of its estimates of the strongest evidence, its heading turned the way the group's votes point
-    (``heading_vote``: every estimate's roles, and with ``prior`` where the vehicle stands), else the way its
-    leading estimate points; the groups' estimates' confidences then lowered where footprints overlap
-    (``suppress_overlaps``)."""
+    (``two_boxes_of_one_image``); each group -> one footprint, the mean of its estimates of the strongest evidence
+    (where that is ``box``, no camera seeing a wheel, the most confident of them: a view that the image circle or a
+    nearer object cuts fits worse; docs/bev.md), its heading turned the way the group's votes point (``heading_vote``:
+    every estimate's roles, and with ``prior`` where the vehicle stands), else the way its leading estimate points;
+    the groups' estimates' confidences then lowered where footprints overlap (``suppress_overlaps``)."""
     def nearness(e: Estimate) -> float:
         return math.hypot(e.box.x, e.box.y)
 
@@ -978,8 +978,13 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
             groups.append([e])
     fused = []
     for g in groups:
-        best = [e.box for e in g if e.rank == g[0].rank]
-        box = orient(_mean_box(best), [best[0].yaw]) if len(best) > 1 else best[0]
+        top = [e for e in g if e.rank == g[0].rank]
+        if len(top) == 1:
+            box = top[0].box
+        elif top[0].evidence == "box":   # no wheel anywhere: the best-trusted view (fit_trust), not the mean
+            box = max(top, key=lambda e: e.confidence).box
+        else:
+            box = orient(_mean_box([e.box for e in top]), [top[0].box.yaw])
         if heading_vote(box, g, prior) < 0:
             box = _flip(box)
         fused.append((box, g))

@@ -159,3 +159,16 @@ def test_two_vehicle_boxes_of_one_image_stay_two_vehicles():
     orphan = _estimate(0.3, 5.0, "l.png", None, evidence="side", confidence=0.45)
     fused = fuse_frame([a, orphan], radius_m=1.5)
     assert len(fused) == 1 and fused[0][1][0] is orphan
+
+
+def test_a_vehicle_no_camera_sees_a_wheel_of_rests_on_its_most_confident_view_and_one_with_wheels_on_their_mean():
+    # two cameras' no-wheel fits of one car, 0.8 m apart: the footprint is the better-trusted one's (a fit's trust
+    # falls with its silhouette cost), not their mean, which a poorly fitting view (cut by the image circle) drags
+    whole, cut = _estimate(0.0, 5.0, "f.png", 0, confidence=0.28), _estimate(0.8, 5.0, "l.png", 0, confidence=0.05)
+    for order in ([whole, cut], [cut, whole]):
+        (box, group), = fuse_frame(order, radius_m=1.5)
+        assert len(group) == 2 and (box.x, box.y) == (0.0, 5.0)
+    # two one-side estimates: their mean, whatever their confidences
+    a, b = _estimate(0.0, 5.0, "f.png", 0, "side", 0.9), _estimate(0.8, 5.0, "l.png", 0, "side", 0.2)
+    (box, _), = fuse_frame([a, b], radius_m=1.5)
+    assert math.isclose(box.x, 0.4) and math.isclose(box.y, 5.0)
