@@ -320,10 +320,12 @@ def silhouette_boxes(cam: Camera, xy: np.ndarray, yaw: np.ndarray, size, shape: 
         crossings, crossed = _fov_crossings(cam, pc.reshape(n, points, 3), theta.reshape(n, points))
         keep = np.concatenate([theta.reshape(n, points) <= cam.theta_max, crossed], axis=1)
         keep[~keep.any(axis=1), :points] = True   # wholly beyond the field of view: its points, moved onto the border
-        pc = np.concatenate([pc.reshape(n, points, 3), crossings], axis=1).reshape(-1, 3)
-        chi = np.hypot(pc[:, 0], pc[:, 1])
-        theta = np.arctan2(chi, pc[:, 2])
         _onto_border(cam, pc, chi, theta)
+        crossing_chi = np.hypot(crossings[..., 0], crossings[..., 1])   # only the new points' angles are computed
+        pc = np.concatenate([pc.reshape(n, points, 3), crossings], axis=1).reshape(-1, 3)
+        chi = np.concatenate([chi.reshape(n, points), crossing_chi], axis=1).reshape(-1)
+        theta = np.concatenate([theta.reshape(n, points), np.arctan2(crossing_chi, crossings[..., 2])],
+                               axis=1).reshape(-1)
     # (2, N, P): u and v each with a vehicle's points contiguous, so that the bbox is four row reductions (a fit asks
     # for thousands of silhouettes; reducing (N, P, 2) over its middle axis took a fifth of the bev stage)
     uv = np.ascontiguousarray(cam.lens.project_polar(pc, chi, theta).T).reshape(2, n, -1) - BOX_TO_IMAGE
