@@ -30,6 +30,7 @@ down with its x axis to the vehicle's right).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
@@ -269,6 +270,21 @@ class Camera:
     translation: np.ndarray   # camera centre in the vehicle frame (m)
     fov_deg: float = 360.0    # rays beyond fov/2 off-axis are not imaged (360: the lens' own limit only)
     intrinsic: dict = field(default_factory=dict)  # the calibration's intrinsic dict this lens came from
+    # where the ego vehicle's own body covers the image: polygons of image points (x, y), as boxes are written; the
+    # calibration's ``ego_body``. A vehicle seen beyond it is hidden there (deepword.footprint.hidden_edges)
+    ego_body: tuple = ()
+
+    @functools.cached_property
+    def ego_mask(self) -> np.ndarray | None:
+        """(height, width) bool: the pixels ``ego_body`` covers (None without one), drawn once per camera."""
+        if not self.ego_body:
+            return None
+        import cv2  # here, not at the top: most users of a camera never draw its mask
+
+        mask = np.zeros((self.height, self.width), np.uint8)
+        cv2.fillPoly(mask, [np.round(np.asarray(p, dtype=np.float64) + BOX_TO_IMAGE).astype(np.int32)
+                            for p in self.ego_body], 1)
+        return mask.astype(bool)
 
     @property
     def theta_max(self) -> float:
@@ -334,9 +350,24 @@ class Camera:
 
     def calibration(self) -> dict:
         """The WoodScape-convention calibration dict (the frame must be ISO 8855, see ``shifted``)."""
-        return {"intrinsic": dict(self.intrinsic),
-                "extrinsic": {"quaternion": matrix_to_quaternion(self.rotation),
-                              "translation": [float(v) for v in self.translation]}}
+        cal = {"intrinsic": dict(self.intrinsic),
+               "extrinsic": {"quaternion": matrix_to_quaternion(self.rotation),
+                             "translation": [float(v) for v in self.translation]}}
+        if self.ego_body:
+            cal["ego_body"] = [[[float(x), float(y)] for x, y in polygon] for polygon in self.ego_body]
+        return cal
+
+
+def ego_body_outline(mask: np.ndarray, tolerance_px: float = 1.0) -> list[list[list[float]]]:
+    """A calibration's ``ego_body`` from a mask of the ego's own body in one camera's image ((H, W), nonzero where
+    the body is): the outline of each region, simplified to within ``tolerance_px`` (``cv2.approxPolyDP``), in box
+    coordinates. ``Camera.ego_mask`` draws it back; regions under 4 square pixels are left out."""
+    import cv2
+
+    contours, _ = cv2.findContours((np.asarray(mask) != 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    return [[[float(x) - BOX_TO_IMAGE, float(y) - BOX_TO_IMAGE]
+             for x, y in cv2.approxPolyDP(c, tolerance_px, True).reshape(-1, 2)]
+            for c in contours if cv2.contourArea(c) >= 4]
 
 
 def camera_from_calibration(calibration: dict, name: str = "") -> Camera:
@@ -347,4 +378,6 @@ def camera_from_calibration(calibration: dict, name: str = "") -> Camera:
                   width=int(intrinsic["width"]), height=int(intrinsic["height"]),
                   rotation=quaternion_to_matrix(ext["quaternion"]),
                   translation=np.asarray(ext["translation"], dtype=np.float64),
-                  fov_deg=float(intrinsic.get("fov_deg", 360.0)), intrinsic=dict(intrinsic))
+                  fov_deg=float(intrinsic.get("fov_deg", 360.0)), intrinsic=dict(intrinsic),
+                  ego_body=tuple(tuple((float(x), float(y)) for x, y in polygon)
+                                 for polygon in calibration.get("ego_body", ())))

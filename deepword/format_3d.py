@@ -6,7 +6,8 @@ them is valid. Stages that need them get them through ``record_camera`` and ``re
 say which record lacks them.
 
     "calibration": {"intrinsic": {"model": <a deepword.cameras.LENS_MODELS name>, ..., "width": W, "height": H},
-                    "extrinsic": {"quaternion": [qx, qy, qz, qw], "translation": [x, y, z]}}
+                    "extrinsic": {"quaternion": [qx, qy, qz, qw], "translation": [x, y, z]},
+                    "ego_body": [[[x, y], ...], ...]}   # optional: polygons where the ego's own body covers the image
     "objects_3d": {"<vehicle box_id>": {"center": [x, y, z], "size": [l, w, h], "yaw": rad},
                    "<wheel box_id>": {"contact": [x, y]}}
 
@@ -69,10 +70,27 @@ def check_calibration(cal, width: int, height: int, fail: Callable[[str, str], N
     t = ext.get("translation")
     if not _vector(t, 3):
         fail("calibration.extrinsic.translation", f"must be [x, y, z] in metres, got {t!r}")
+    if "ego_body" in cal:
+        check_ego_body(cal["ego_body"], width, height, fail)
     try:
         camera_from_calibration(cal)
     except ValueError as exc:  # e.g. a lens polynomial that never increases
         fail("calibration.intrinsic", str(exc))
+
+
+def check_ego_body(polygons, width: int, height: int, fail: Callable[[str, str], None]) -> None:
+    """Validate ``calibration.ego_body``: a list of polygons of at least three image points [x, y] (box
+    coordinates: 0..width, 0..height), where the ego vehicle's own body covers the image."""
+    if not isinstance(polygons, list):
+        fail("calibration.ego_body", f"must be a list of polygons (lists of [x, y] image points), got {polygons!r}")
+    for i, polygon in enumerate(polygons):
+        if not isinstance(polygon, list) or len(polygon) < 3:
+            fail(f"calibration.ego_body[{i}]", "must be a polygon of at least three [x, y] image points")
+        for j, point in enumerate(polygon):
+            if not _vector(point, 2):
+                fail(f"calibration.ego_body[{i}][{j}]", f"must be [x, y] (two finite numbers), got {point!r}")
+            if not (-1 <= point[0] <= width + 1 and -1 <= point[1] <= height + 1):
+                fail(f"calibration.ego_body[{i}][{j}]", f"{point!r} lies outside the {width}x{height} image")
 
 
 def check_objects_3d(objs, class_of: dict[int, int], fail: Callable[[str, str], None]) -> None:

@@ -13,11 +13,13 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from deepword.cameras import ego_body_outline
 from deepword.progress import progress_lines
 from deepword.word_format import CAMERAS, VEHICLE, WHEEL, Record
 from stages.data.backdrop import GroundBank, cloud_field, draw_look, ground_texture
@@ -51,8 +53,10 @@ class FrameGenerator:
         one rig: building a rig's tables costs about as much as rendering a frame)."""
         rig = int(frame_id) // int(self.cfg["lens"]["frames_per_rig"])
         if self._rig is None or self._rig[0] != rig:
-            cams = rig_cameras(self.cfg, self.seed, rig, CAMERAS)
-            self._rig = (rig, [build_tables(cam, self.ego) for cam in cams])
+            tables = [build_tables(cam, self.ego) for cam in rig_cameras(self.cfg, self.seed, rig, CAMERAS)]
+            for t in tables:   # the calibration says where the ego's body covers the image, as a rig's would
+                t.cam = replace(t.cam, ego_body=tuple(tuple(map(tuple, p)) for p in ego_body_outline(t.ego_mask)))
+            self._rig = (rig, tables)
         return self._rig[1]
 
     def frame_rng(self, frame_id: int) -> np.random.Generator:

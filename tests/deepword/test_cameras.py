@@ -2,6 +2,7 @@
 agreement with cv2.fisheye inside its valid range, WoodScape's published convention, ground back-projection."""
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 from deepword.cameras import (
     camera_from_calibration,
+    ego_body_outline,
     matrix_to_quaternion,
     mount_rotation,
     quaternion_to_matrix,
@@ -159,3 +161,18 @@ def test_a_lens_model_is_one_class_the_calibration_checks_and_cameras_use():
         LENS_MODELS.pop("test_equidistant", None)
     with pytest.raises(ValueError, match="must be one of"):
         check_calibration(cal, 640, 480, fail)
+
+
+def test_an_ego_body_outline_draws_back_the_mask_it_came_from():
+    """``ego_body_outline`` (mask -> polygons in box coordinates) and ``Camera.ego_mask`` (polygons -> mask) are
+    inverse to within the outline's simplification: the ego's body at the bottom of a fisheye image, and a mirror."""
+    mask = np.zeros((120, 160), np.uint8)
+    cv2.ellipse(mask, (80, 150), (90, 50), 0, 0, 360, 1, -1)   # the bonnet's curve, cut by the image's bottom
+    cv2.rectangle(mask, (0, 30), (12, 60), 1, -1)                 # a mirror at the side
+    body = ego_body_outline(mask)
+    assert len(body) == 2 and all(len(p) >= 3 for p in body)
+    cam = replace(CAMERAS[0], width=160, height=120, ego_body=tuple(tuple(map(tuple, p)) for p in body))
+    drawn = cam.ego_mask
+    assert drawn.shape == mask.shape
+    assert (drawn != mask.astype(bool)).sum() <= 0.03 * mask.sum()
+    assert cam.calibration()["ego_body"] == body

@@ -36,6 +36,17 @@ def test_a_complete_record_and_a_plain_2d_record_both_read(tmp_path):
     assert "calibration" not in plain.extra and full.extra["calibration"]["intrinsic"]["model"] == "radial_poly"
 
 
+def test_the_ego_body_reads_into_the_camera_and_writes_back(tmp_path):
+    from deepword.format_3d import record_camera
+
+    body = [[[0.0, 440.0], [640.0, 440.0], [640.0, 480.0], [0.0, 480.0]]]
+    _, rec = _read(tmp_path, calibration__ego_body=body)
+    cam = record_camera(rec, "test")
+    assert cam.calibration()["ego_body"] == body
+    assert cam.ego_mask[440:].all() and not cam.ego_mask[:439].any()
+    assert record_camera(_read(tmp_path)[1], "test").ego_mask is None
+
+
 @pytest.mark.parametrize("change, field, message", [
     ({"calibration__intrinsic__model": "pinhole"}, "calibration.intrinsic.model", "must be one of"),
     ({"calibration__intrinsic__k3": None}, "calibration.intrinsic.k3", "missing"),
@@ -43,6 +54,11 @@ def test_a_complete_record_and_a_plain_2d_record_both_read(tmp_path):
     ({"calibration__extrinsic__quaternion": [0, 0, 1]}, "calibration.extrinsic.quaternion", "[qx, qy, qz, qw]"),
     ({"calibration__extrinsic__quaternion": [0, 0, 0, 0.01]}, "calibration.extrinsic.quaternion", "not a rotation"),
     ({"calibration__intrinsic__k1": -5.0}, "calibration.intrinsic.k1", "must be positive"),
+    ({"calibration__ego_body": {"front": []}}, "calibration.ego_body", "must be a list of polygons"),
+    ({"calibration__ego_body": [[[0, 470], [640, 470]]]}, "calibration.ego_body[0]", "at least three"),
+    ({"calibration__ego_body": [[[0, 470], [640, 470], [640]]]}, "calibration.ego_body[0][2]", "[x, y]"),
+    ({"calibration__ego_body": [[[0, 470], [700, 470], [640, 480]]]}, "calibration.ego_body[0][1]",
+     "outside the 640x480 image"),
     ({"objects_3d__7": {"contact": [1, 2]}}, "objects_3d.7", "box_id 7 does not exist"),
     ({"objects_3d__0__size": [4.5, 0, 1.5]}, "objects_3d.0.size", "> 0"),
     ({"objects_3d__1": {"center": [1, 2, 0]}}, "objects_3d.1.contact", "ground contact"),

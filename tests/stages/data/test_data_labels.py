@@ -135,3 +135,20 @@ def test_multi_box_wheel_counts_a_wheel_inside_two_vehicle_boxes():
     # Fig. 2: the near vehicle (0, big) owns wheel 2, which also lies inside the far, smaller vehicle 1's box
     rec = _record([((0, 0, 90, 90), VEHICLE), ((40, 40, 80, 80), VEHICLE), ((50, 60, 60, 70), WHEEL)], [(0, 2, "rear")])
     assert multi_box_wheels(rec) == 1
+
+
+def test_each_calibration_outlines_where_the_egos_body_covers_its_image(synword_sample):
+    """The renderer's ego body, as a rig's calibration would give it (``calibration.ego_body``): drawn back from the
+    outline, it covers the pixels the renderer put the ego's body in, to within the outline's simplification."""
+    from deepword.format_3d import record_camera
+
+    _, records = synword_sample
+    generator = FrameGenerator(synword_cfg(frames=12), seed=7)
+    covered = 0
+    for rec in records[:8]:
+        rendered = next(t.ego_mask for t in generator.tables(rec.frame_id) if t.cam.name == rec.camera).astype(bool)
+        drawn = record_camera(rec, "test").ego_mask
+        assert drawn is not None and drawn.shape == rendered.shape, rec.image
+        assert (drawn != rendered).sum() <= 0.05 * max(rendered.sum(), 1), rec.image
+        covered += int(rendered.any())
+    assert covered >= 4   # the body is in most cameras' view
