@@ -4,6 +4,7 @@ Cells are strings, floats (two decimals) or None (shown as ``n/a``, left empty i
 from __future__ import annotations
 
 import csv
+import re
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,27 @@ def fmt(value) -> str:
     return str(value)
 
 
+def _cell(text: str):
+    if text == NOT_AVAILABLE:
+        return None
+    if re.fullmatch(r"-?\d+", text):
+        return int(text)
+    if re.fullmatch(r"-?\d+\.\d+", text):
+        return float(text)
+    return text
+
+
+def tables_in_markdown(text: str) -> dict[str, Table]:
+    """Every table of a page that ``Table.markdown`` wrote (a heading, then a pipe table), by title."""
+    found = {}
+    blocks = re.split(r"^(?=#+ )", text, flags=re.MULTILINE)
+    for block in blocks:
+        if block.startswith("#") and "\n|" in block:
+            table = Table.from_markdown(block)
+            found[table.title] = table
+    return found
+
+
 @dataclass
 class Table:
     title: str
@@ -31,6 +53,19 @@ class Table:
                  "|" + "|".join("---" for _ in self.header) + "|"]
         lines += ["| " + " | ".join(fmt(c) for c in row) + " |" for row in self.rows]
         return "\n".join(lines + [""] + [f"- {n}" for n in self.notes] + [""])
+
+    @classmethod
+    def from_markdown(cls, block: str) -> Table:
+        """The table ``markdown`` wrote, read back: its title, header, rows and notes. Cells read as ``fmt`` wrote
+        them: ``n/a`` as None, whole numbers as int, numbers with decimals as float, anything else (and every
+        row's first cell, its label) as the string."""
+        lines = block.strip("\n").split("\n")
+        title = lines[0].lstrip("#").strip()
+        table = [line for line in lines[1:] if line.startswith("|")]
+        notes = [line[2:] for line in lines[1:] if line.startswith("- ")]
+        split = [[c.strip() for c in line.strip()[1:-1].split(" | ")] for line in table]
+        rows = [[row[0], *map(_cell, row[1:])] for row in split[2:]]
+        return cls(title, split[0] if split else [], rows, notes)
 
     def write_csv(self, path: Path) -> None:
         with path.open("w", newline="") as f:

@@ -28,11 +28,18 @@ from deepword import paper
 from deepword.scoring.report import metric_name
 from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
-from pipeline.tables import NOT_AVAILABLE, Table, paired_difference, save_figure
+from pipeline.tables import NOT_AVAILABLE, Table, fmt, paired_difference, save_figure, tables_in_markdown
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import bev_tables
-from stages.tables.headline import headline_table, write_headline
+from stages.tables.headline import (
+    ADAPT_RECIPE,
+    ADAPT_ROWS,
+    HEADLINE_BEGIN,
+    HEADLINE_END,
+    headline_table,
+    write_headline,
+)
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 
 COMPARISON_TAG = "kind"
@@ -259,6 +266,14 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     tbs, used_bev = bev_tables(runs)
     ta, used_adapt = adapt_table(runs, adapt_experiment)
     th, used_headline = headline_table(runs, adapt_experiment)
+    # a table this store has no runs for keeps what the page shows (another store's runs, e.g. a sweep run elsewhere)
+    earlier = measured_tables(results) if results is not None else {}
+    t1, t2, t3, td, ta = (keep_earlier(t, used, earlier) for t, used in
+                          ((t1, used1), (t2, used2), (t3, used3), (td, used_datasets),
+                           (ta, {k: v for k, v in used_adapt.items() if k != "adapt.base"})))   # the sweep's own runs
+    tbs = [keep_earlier(t, used_bev, earlier) for t in tbs]
+    if readme is not None and "headline.adapt" not in used_headline:
+        th = keep_adapt_row(th, readme)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "headline.md").write_text(th.markdown())
     tables = [t1, t2, t3]
@@ -275,13 +290,13 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     bar_chart(tables, out_dir / "comparison.png")
     (out_dir / "datasets.md").write_text(td.markdown())
     td.write_csv(out_dir / "datasets.csv")
-    if used_datasets:
+    if used_datasets or KEPT_NOTE in td.notes:
         datasets_chart(td, out_dir / "datasets.png")
     else:  # no stale chart beside a table that has no rows
         (out_dir / "datasets.png").unlink(missing_ok=True)
     (out_dir / "adapt.md").write_text(ta.markdown())
     ta.write_csv(out_dir / "adapt.csv")
-    if used_adapt:
+    if used_adapt or KEPT_NOTE in ta.notes:
         adapt_chart(ta, out_dir / "adapt.png")
     else:
         (out_dir / "adapt.png").unlink(missing_ok=True)
@@ -300,6 +315,44 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
         client.set_terminated(run.info.run_id)
         result["run_id"] = run.info.run_id
     return result
+
+
+KEPT_NOTE = ("Kept from this page as `make compare` last wrote it: the tracking store it ran on now has no runs for "
+             "this table (each row names the run, commit and date it came from).")
+
+
+def measured_tables(page: Path) -> dict[str, Table]:
+    """The tables of ``page``'s measured section (between RESULTS_BEGIN and RESULTS_END), by title."""
+    text = page.read_text() if page.is_file() else ""
+    if RESULTS_BEGIN not in text or RESULTS_END not in text:
+        return {}
+    return tables_in_markdown(text.split(RESULTS_BEGIN, 1)[1].split(RESULTS_END, 1)[0])
+
+
+def keep_earlier(table: Table, used: dict, earlier: dict[str, Table]) -> Table:
+    """``table``, or where none of its rows came from a run (``used``: row -> run id) the page's earlier table of
+    that title with ``KEPT_NOTE``: a store without a sweep's runs does not wipe what another store measured."""
+    before = earlier.get(table.title)
+    def shown(rows):
+        return [[fmt(c) for c in row] for row in rows]
+
+    if any(used.values()) or before is None or shown(before.rows) == shown(table.rows):
+        return table
+    return Table(before.title, before.header, before.rows, [*(n for n in before.notes if n != KEPT_NOTE), KEPT_NOTE])
+
+
+def keep_adapt_row(headline: Table, readme: Path) -> Table:
+    """The headline with the adapt sweep's row the README shows, where this store has no adapt runs."""
+    text = readme.read_text() if readme.is_file() else ""
+    if HEADLINE_BEGIN not in text or HEADLINE_END not in text or not headline.rows:
+        return headline
+    shown = Table.from_markdown("# Headline\n" + text.split(HEADLINE_BEGIN, 1)[1].split(HEADLINE_END, 1)[0])
+    prefix = ADAPT_ROWS[ADAPT_RECIPE].split("{n}")[0]
+    kept = [row for row in shown.rows if str(row[0]).startswith(prefix)]
+    if not kept:
+        return headline
+    note = "The last row is kept from the README: the tracking store `make compare` ran on has no adapt runs."
+    return Table(headline.title, headline.header, [*headline.rows, *kept], [*headline.notes[:-1], note, headline.notes[-1]])
 
 
 def _head_commit() -> str:

@@ -229,6 +229,35 @@ def test_compare_writes_the_adapt_table_curves_and_results_section(tmp_path):
     assert sum(k.startswith("adapt.") for k in result["sources"]) == 6
 
 
+
+def test_a_store_without_the_sweeps_runs_keeps_the_pages_adapt_table(tmp_path):
+    """The sweep ran against another store: ``make compare`` on one that has the default run alone keeps the page's
+    adapt table and curves (with a note saying so) instead of writing an empty table over them."""
+    from stages.tables.compare import KEPT_NOTE, measured_tables
+
+    def store(path, runs):
+        uri = fresh_store(path)
+        ops = MlflowOps(uri, "deepword")
+        base_id = None
+        for run in reversed(runs):
+            run_id = ops.create_run(run.name, {"profile": "smoke", "git_commit": "abc"})
+            ops.log(run_id, metrics=run.metrics, params=run.params | ({"adapt.base_run": base_id} if base_id else {}))
+            ops.end(run_id)
+            base_id = base_id or run_id
+        return uri
+
+    page = tmp_path / "results.md"
+    compare(store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
+    title = next(t for t in measured_tables(page) if t.startswith("How many images to label"))
+    measured = measured_tables(page)[title]
+    assert len(measured.rows) == 5 and KEPT_NOTE not in measured.notes
+    compare(store(tmp_path / "base.db", _runs()[-1:]), "deepword", tmp_path / "again", log=False, results=page)
+    kept = measured_tables(page)[title]
+    assert (kept.header, kept.rows, kept.notes) == (measured.header, measured.rows, [*measured.notes, KEPT_NOTE])
+    assert (tmp_path / "again" / "adapt.png").stat().st_size > 20_000
+    compare(store(tmp_path / "base2.db", _runs()[-1:]), "deepword", tmp_path / "third", log=False, results=page)
+    assert page.read_text().count(KEPT_NOTE) == 1   # kept again, noted once
+
 # --- the default run finetune starts from --------------------------------------------------------------------
 
 def test_the_base_run_is_the_newest_finished_default_run_of_the_profile(tmp_path, capsys):

@@ -147,6 +147,16 @@ def test_datasets_table_of_a_variant_swept_under_its_own_name(store, tmp_path):
     assert "(rank2)" in (tmp_path / "v" / "datasets.md").read_text()
 
 
+def test_a_table_reads_back_from_its_markdown():
+    from pipeline.tables import Table, tables_in_markdown
+
+    table = Table("Table 9: a title", ["Row", "N", "score", "note"],
+                  [["seed 42", 50, 83.76, "+0.41 ± 0.12"], ["42", 0, None, "run x (abc, 2026-01-01)"]],
+                  ["A note.", "Another: with a colon."])
+    page = "# Results\n\nProse.\n\n" + table.markdown(level=3) + "\n### Not a table\n\nText.\n"
+    assert tables_in_markdown(page) == {table.title: table}
+
+
 def test_paired_difference_is_the_mean_with_its_standard_error():
     assert paired_difference([1.0, -1.0, 0.0, 2.0]) == "+0.50 ± 0.65"  # sd 1.29 / sqrt(4)
     assert paired_difference([-0.3]) == "-0.30" and paired_difference([]) == "n/a"

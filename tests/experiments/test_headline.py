@@ -137,3 +137,20 @@ def test_no_default_run_says_what_to_run_and_the_readme_markers_are_required(tmp
     page.write_text("no markers")
     with pytest.raises(SystemExit, match="no headline markers"):
         write_headline(page, table)
+
+
+def test_a_store_without_adapt_runs_keeps_the_readmes_adapt_row(tmp_path):
+    """``make compare`` on a store that has the default run but not the adapt sweep keeps the README's row of the
+    recommended recipe (with a note), and a store that has the sweep writes its own."""
+    from stages.tables.compare import keep_adapt_row
+
+    base = RunRecord("base", "default", 1, _default_params(), _metrics(80.0), QUICK)
+    with_sweep, _ = headline_table([*_draws("mix", "mixed", "none"), base], "adapt")
+    page = tmp_path / "README.md"
+    page.write_text(f"# x\n{HEADLINE_BEGIN}\nstale\n{HEADLINE_END}\n")
+    write_headline(page, with_sweep)
+    without, sources = headline_table([base], "adapt")
+    assert "headline.adapt" not in sources and len(without.rows) == len(with_sweep.rows) - 1
+    kept = keep_adapt_row(without, page)
+    assert kept.rows == [*without.rows, with_sweep.rows[-1]]
+    assert "kept from the README" in kept.notes[-2] and kept.notes[-1] == without.notes[-1]
