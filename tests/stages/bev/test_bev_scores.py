@@ -171,10 +171,10 @@ def test_fit_trust_falls_with_the_fit_cost():
     assert fit_trust(FIT_COST_SCALE) == pytest.approx(math.exp(-1))
 
 
-def test_overlapping_footprints_keep_the_uncovered_share_of_their_confidence():
-    """Two vehicles do not overlap on the ground: a footprint half under a more confident one keeps half its
-    confidence, one a quarter under each of two keeps 3/4 x 3/4, one clear of the others all of it; the most confident
-    keeps its own whatever lies under it, and nothing is removed."""
+def test_overlapping_footprints_keep_the_square_of_their_uncovered_share_of_their_confidence():
+    """Two vehicles do not overlap on the ground: a footprint half under a more confident one keeps a quarter of its
+    confidence ((1/2)^2, OVERLAP_POWER), one a quarter under each of two keeps (3/4)^2 x (3/4)^2, one clear of the
+    others all of it; the most confident keeps its own whatever lies under it, and nothing is removed."""
     def est(x, y, conf, length=4.0):
         return Estimate(Box3D(x, y, length, 2.0, 0.0), "box", "front", 0, "a.png", conf)
 
@@ -184,11 +184,11 @@ def test_overlapping_footprints_keep_the_uncovered_share_of_their_confidence():
     out = suppress_overlaps([half, strong, clear])
     assert [len(g) for _, g in out] == [1, 2, 1] and [b for b, _ in out] == [half[0], strong[0], clear[0]]
     assert group_confidence(out[1][1]) == 0.9 and group_confidence(out[2][1]) == 0.4
-    assert group_confidence(out[0][1]) == pytest.approx(0.3 * 0.5)
+    assert group_confidence(out[0][1]) == pytest.approx(0.3 * 0.5 ** 2)
     left, right = (est(-3.0, 0.0, 0.8).box, [est(-3.0, 0.0, 0.8)]), (est(3.0, 0.0, 0.7).box, [est(3.0, 0.0, 0.7)])
     middle = (est(0.0, 0.0, 0.2).box, [est(0.0, 0.0, 0.2)])          # a quarter under each neighbour
     out = suppress_overlaps([left, middle, right])
-    assert group_confidence(out[1][1]) == pytest.approx(0.2 * 0.75 * 0.75)
+    assert group_confidence(out[1][1]) == pytest.approx(0.2 * 0.75 ** 2 * 0.75 ** 2)
     assert [group_confidence(g) for _, g in suppress_overlaps([clear])] == [0.4]
 
 
