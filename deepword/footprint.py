@@ -43,9 +43,9 @@ silhouette fit's cost.
 
 ``fuse_frame`` merges a frame's per-camera estimates: estimates within ``fuse_radius_m`` of each other are
 one vehicle (seen by two cameras), except two of one image's vehicle boxes, which are two vehicles; its footprint is
-the mean of its strongest estimates, its heading turned the way its strongest directed estimates point, its
-confidence the highest of its estimates', less the share of it that more confident footprints cover
-(``suppress_overlaps``: vehicles do not overlap on the ground).
+the mean of its strongest estimates (the most confident of them where no camera sees a wheel), its heading turned
+the way its votes point (``heading_vote``), its confidence the highest of its estimates', lowered where more confident
+footprints cover it (``suppress_overlaps``: vehicles do not overlap on the ground).
 """
 
 from __future__ import annotations
@@ -1077,7 +1077,7 @@ OVERLAP_POWER = 2
 
 
 def suppress_overlaps(fused: list[tuple[Box3D, list[Estimate]]]) -> list[tuple[Box3D, list[Estimate]]]:
-    """Soft suppression of a frame's footprints (the linear Soft-NMS of Bodla et al., 2017, on the ground): two
+    """Soft suppression of a frame's footprints (a Soft-NMS after Bodla et al., 2017, on the ground): two
     vehicles do not overlap on the ground, so a footprint that overlaps a more confident one is more likely a second
     estimate of the same vehicle than another vehicle (an end-on or hidden vehicle's estimate from another camera, off by
     more than the fusion radius). In falling confidence, each footprint's estimates' confidences are multiplied by
