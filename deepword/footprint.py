@@ -1069,10 +1069,10 @@ def fit_trust(cost: float) -> float:
 
 
 # A footprint half under a more confident one keeps a quarter of its confidence, not half: most of the end-to-end
-# false positives within 10 m are second footprints of a vehicle another footprint matched (val, three datasets: 22 of
-# 30, 135 of 173 on seed 42's val / train), one- and no-wheel estimates beyond the fusion radius. On three datasets'
-# val and train splits, power 2 against 1: AP within 10 m up or level on all six end to end and on labelled boxes, the
-# no-wheel AP up on all twelve; 3 gave what 2 gave (docs/bev.md, "Confidence")
+# false positives within 10 m are second footprints of a vehicle another footprint matched (22 of 30 and 135 of 173
+# on seed 42's val / train), one- and no-wheel estimates beyond the fusion radius. On three datasets' val and train
+# splits, power 2 against 1: AP within 10 m up or level on all six end to end and on labelled boxes, the no-wheel AP
+# up on all twelve; 3 gave what 2 gave (docs/bev.md, "Confidence")
 OVERLAP_POWER = 2
 
 
