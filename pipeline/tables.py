@@ -30,6 +30,13 @@ def _cell(text: str):
     return text
 
 
+def between(text: str, begin: str, end: str) -> str | None:
+    """The text between the markers ``begin`` and ``end`` of a page, or None where either is missing."""
+    if begin not in text or end not in text:
+        return None
+    return text.split(begin, 1)[1].split(end, 1)[0]
+
+
 def tables_in_markdown(text: str) -> dict[str, Table]:
     """Every table of a page that ``Table.markdown`` wrote (a heading, then a pipe table), by title."""
     found = {}

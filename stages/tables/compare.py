@@ -28,18 +28,19 @@ from deepword import paper
 from deepword.scoring.report import metric_name
 from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord, load_runs
-from pipeline.tables import NOT_AVAILABLE, Table, fmt, paired_difference, save_figure, tables_in_markdown
+from pipeline.tables import (
+    NOT_AVAILABLE,
+    Table,
+    between,
+    fmt,
+    paired_difference,
+    save_figure,
+    tables_in_markdown,
+)
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import bev_tables
-from stages.tables.headline import (
-    ADAPT_RECIPE,
-    ADAPT_ROWS,
-    HEADLINE_BEGIN,
-    HEADLINE_END,
-    headline_table,
-    write_headline,
-)
+from stages.tables.headline import headline_table, keep_adapt_row, write_headline
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 
 COMPARISON_TAG = "kind"
@@ -323,10 +324,8 @@ KEPT_NOTE = ("Kept from this page as `make compare` last wrote it: the tracking 
 
 def measured_tables(page: Path) -> dict[str, Table]:
     """The tables of ``page``'s measured section (between RESULTS_BEGIN and RESULTS_END), by title."""
-    text = page.read_text() if page.is_file() else ""
-    if RESULTS_BEGIN not in text or RESULTS_END not in text:
-        return {}
-    return tables_in_markdown(text.split(RESULTS_BEGIN, 1)[1].split(RESULTS_END, 1)[0])
+    section = between(page.read_text(), RESULTS_BEGIN, RESULTS_END) if page.is_file() else None
+    return tables_in_markdown(section) if section is not None else {}
 
 
 def keep_earlier(table: Table, used: dict, earlier: dict[str, Table]) -> Table:
@@ -339,20 +338,6 @@ def keep_earlier(table: Table, used: dict, earlier: dict[str, Table]) -> Table:
     if any(used.values()) or before is None or shown(before.rows) == shown(table.rows):
         return table
     return Table(before.title, before.header, before.rows, [*(n for n in before.notes if n != KEPT_NOTE), KEPT_NOTE])
-
-
-def keep_adapt_row(headline: Table, readme: Path) -> Table:
-    """The headline with the adapt sweep's row the README shows, where this store has no adapt runs."""
-    text = readme.read_text() if readme.is_file() else ""
-    if HEADLINE_BEGIN not in text or HEADLINE_END not in text or not headline.rows:
-        return headline
-    shown = Table.from_markdown("# Headline\n" + text.split(HEADLINE_BEGIN, 1)[1].split(HEADLINE_END, 1)[0])
-    prefix = ADAPT_ROWS[ADAPT_RECIPE].split("{n}")[0]
-    kept = [row for row in shown.rows if str(row[0]).startswith(prefix)]
-    if not kept:
-        return headline
-    note = "The last row is kept from the README: the tracking store `make compare` ran on has no adapt runs."
-    return Table(headline.title, headline.header, [*headline.rows, *kept], [*headline.notes[:-1], note, headline.notes[-1]])
 
 
 def _head_commit() -> str:

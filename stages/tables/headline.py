@@ -8,7 +8,7 @@ from __future__ import annotations
 from deepword.scoring.report import metric_name
 from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord
-from pipeline.tables import Table
+from pipeline.tables import Table, between
 from stages.tables.adapt import adapt_points, end_to_end_method
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import score
@@ -97,6 +97,19 @@ def _mean(values: list[float | None]) -> float | None:
 
 def _fmt(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.1f}"
+
+
+def keep_adapt_row(headline: Table, readme) -> Table:
+    """The headline with the adapt sweep's row the README shows, where this store has no adapt runs."""
+    shown = between(readme.read_text(), HEADLINE_BEGIN, HEADLINE_END) if readme.is_file() else None
+    if shown is None or not headline.rows:
+        return headline
+    prefix = ADAPT_ROWS[ADAPT_RECIPE].split("{n}")[0]
+    kept = [row for row in Table.from_markdown("# Headline\n" + shown).rows if str(row[0]).startswith(prefix)]
+    if not kept:
+        return headline
+    note = "The last row is kept from the README: the tracking store `make compare` ran on has no adapt runs."
+    return Table(headline.title, headline.header, [*headline.rows, *kept], [*headline.notes[:-1], note, headline.notes[-1]])
 
 
 def write_headline(page, table: Table) -> None:

@@ -142,7 +142,7 @@ def test_no_default_run_says_what_to_run_and_the_readme_markers_are_required(tmp
 def test_a_store_without_adapt_runs_keeps_the_readmes_adapt_row(tmp_path):
     """``make compare`` on a store that has the default run but not the adapt sweep keeps the README's row of the
     recommended recipe (with a note), and a store that has the sweep writes its own."""
-    from stages.tables.compare import keep_adapt_row
+    from stages.tables.headline import keep_adapt_row
 
     base = RunRecord("base", "default", 1, _default_params(), _metrics(80.0), QUICK)
     with_sweep, _ = headline_table([*_draws("mix", "mixed", "none"), base], "adapt")
