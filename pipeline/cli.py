@@ -54,6 +54,8 @@ def _traceback_file(exc: BaseException) -> Path | str:
     from hydra.core.hydra_config import HydraConfig
 
     text = "".join(traceback.format_exception(exc))
+    if getattr(exc, "stage_traceback", ""):  # computed in a process of its own (pipeline.stage_call): where it failed
+        text += "\nIn the stage's process:\n" + exc.stage_traceback
     path = Path(HydraConfig.get().runtime.output_dir) / "error.log"
     try:
         path.write_text(text)

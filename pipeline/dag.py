@@ -16,7 +16,7 @@ from pipeline.errors import PipelineError
 from pipeline.outputs import check_declared
 
 STAGE_FIELDS = {"run", "inputs", "optional", "config", "watch", "checks", "dataset", "every_rank", "resolve", "outputs",
-                "estimate", "size"}
+                "estimate", "size", "threads"}
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class StageSpec:
     # {name: path relative to the stage's output directory, may hold {field} placeholders}: the files downstream
     # stages read (pipeline.outputs)
     outputs: tuple[tuple[str, str], ...] = ()
+    # the config key holding the CPU threads the stage computes on: stages that declare one may run side by side
+    # within pipeline.cores (pipeline.schedule); None: the stage runs alone
+    threads: str | None = None
 
 
 def load_hook(stage: str, field: str, target: str):
@@ -108,6 +111,12 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
     if not isinstance(outputs, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in outputs.items()):
         raise PipelineError(f"pipeline.stages.{name}.outputs: expected a mapping of names to relative paths, got {outputs!r}")
     check_declared(name, outputs)
+    threads = node.get("threads")
+    if threads is not None and (not isinstance(threads, str) or threads.split(".")[0] not in config
+                                or OmegaConf.select(cfg, threads, default=None) is None):
+        # under one of its config keys: the threads a stage computes on are part of its cache key
+        raise PipelineError(f"pipeline.stages.{name}.threads: expected a key under its config {list(config)} that "
+                            f"holds the stage's CPU threads (e.g. relation.train.threads), got {threads!r}")
     every_rank = node.get("every_rank", False)
     if not isinstance(every_rank, bool):
         raise PipelineError(f"pipeline.stages.{name}.every_rank: expected true or false, got {every_rank!r}")
@@ -126,6 +135,7 @@ def _parse_stage(name: str, node, cfg: DictConfig) -> StageSpec:
         estimate=estimate,
         size=size,
         outputs=tuple(outputs.items()),
+        threads=threads,
     )
 
 

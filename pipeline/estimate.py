@@ -73,20 +73,30 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
 
 
-def format_estimates(estimates: list[Estimate], budget_seconds: float | None, profile: str = "") -> str:
-    """The plan's estimate lines: one per stage with a hook, the total, and a warning when over budget."""
+def format_estimates(estimates: list[Estimate], budget_seconds: float | None, profile: str = "",
+                     together: list[list[str]] = ()) -> str:
+    """The plan's estimate lines: one per stage with a hook, the total, and a warning when over budget.
+    ``together``: the stages that run side by side (``pipeline.schedule``'s waves); a wave counts as its longest."""
     if not estimates:
         return ""
     width = max(len("total"), *(len(e.stage) for e in estimates))   # the total line aligns with the stages
+    wave_of = {name: wave for wave in together for name in wave}
     lines = ["Estimated time of the stages to run, on this host:"]
     for e in estimates:
         figure = "?" if e.seconds is None else _duration(e.seconds)
-        lines.append(f"  {e.stage:<{width}}  {figure:>9}  {e.note}".rstrip())
+        beside = [n for n in wave_of.get(e.stage, [e.stage]) if n != e.stage]
+        note = e.note + (f"; beside {', '.join(beside)}" if beside else "")
+        lines.append(f"  {e.stage:<{width}}  {figure:>9}  {note}".rstrip())
     known = [e for e in estimates if e.seconds is not None]
     if not known:
         return "\n".join(lines)
-    total = sum(e.seconds for e in known)
-    lines.append(f"  {'total':<{width}}  {_duration(total):>9}  (stages without an estimate hook not counted)")
+    longest: dict[tuple[str, ...], float] = {}  # a wave's time: its longest stage's
+    for e in known:
+        wave = tuple(wave_of.get(e.stage, [e.stage]))
+        longest[wave] = max(longest.get(wave, 0.0), e.seconds)
+    total = sum(longest.values())
+    side = "; stages side by side count as the longest of them" if any(len(w) > 1 for w in longest) else ""
+    lines.append(f"  {'total':<{width}}  {_duration(total):>9}  (stages without an estimate hook not counted{side})")
     if budget_seconds is not None and total > budget_seconds:
         slowest = max(known, key=lambda e: e.seconds)
         where = f" of profile {profile}" if profile else ""

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -31,7 +32,9 @@ from pipeline.plan import StagePlan, explain_hit, explain_miss, format_plan
 from pipeline.ranks import LAUNCH_ID_VARIABLE, POLL_SECONDS, LaunchFile, Rank, current_rank, read_launch_file
 from pipeline.report import summary_table, write_summary
 from pipeline.run_record import DIGEST_TAG, UNKNOWN, RecordedRun, find_in_sqlite, run_digest
+from pipeline.schedule import cores, stage_threads, waves
 from pipeline.sizing import apply_sized, format_sized, size_stages, sized_params, sized_values
+from pipeline.stage_call import Job, Outcome, call_stage, run_side_by_side, stage_cfg
 from pipeline.tracker import check_server, flatten_params, open_tracker
 
 
@@ -110,28 +113,6 @@ def _plan(specs: dict[str, StageSpec], selected: list[str], cfg: DictConfig, cac
     return plans
 
 
-def _check_metrics(stage: str, metrics) -> dict[str, float]:
-    if metrics is None:
-        return {}
-    if not isinstance(metrics, dict):
-        raise PipelineError(f"stage '{stage}' returned {type(metrics).__name__}, expected a dict of metrics")
-    out = {}
-    for k, v in metrics.items():
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise PipelineError(f"stage '{stage}': metric {k!r} is {v!r}, expected a number")
-        out[str(k)] = float(v)
-    return out
-
-
-def _stage_cfg(parts: KeyParts) -> DictConfig:
-    """Only the declared keys (and what the stage's resolve hook added), resolved: exactly what the key hashes,
-    read-only."""
-    sub = OmegaConf.create(parts.config)
-    OmegaConf.set_readonly(sub, True)
-    OmegaConf.set_struct(sub, True)
-    return sub
-
-
 def _stage_inputs(spec: StageSpec, parts: KeyParts, outputs: dict[str, Path],
                   specs: dict[str, StageSpec]) -> StageInputs:
     """The upstream outputs (an optional input may be left out) with their declared outputs, and the files the
@@ -153,9 +134,8 @@ def _check_outputs(spec: StageSpec, out_dir: Path, what: str) -> None:
         raise PipelineError(f"stage '{spec.name}' {what} its declared output(s) {missing} in {out_dir}{hint}")
 
 
-def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker,
-             inputs: dict[str, Path], run_id: str, uri: str, launch: LaunchFile) -> Entry:
-    """Run the stage into its work dir and commit it; the caller holds the key's lock."""
+def _begin(plan: StagePlan, spec: StageSpec, cache: Cache, launch: LaunchFile) -> Path:
+    """The stage's work dir (resumed where an interrupted attempt left one); the caller holds the key's lock."""
     if spec.every_rank and launch.rank.world_size > 1 and cache.partial_dir(spec.name, plan.key).exists():
         # The other ranks start the stage from nothing, and ranks of one process group must start alike.
         _say(f"Stage '{spec.name}': not resuming an interrupted attempt: {launch.rank.world_size} ranks start it afresh")
@@ -165,27 +145,39 @@ def _compute(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tr
         _say(f"Stage '{spec.name}': resuming from what an interrupted attempt left in {tmp}")
     if spec.every_rank:
         launch.computing(spec.name, plan.key, resumed, tmp / "out")
-    start = time.perf_counter()
-    try:
-        func = load_hook(spec.name, "run", f"{spec.module}:{spec.function}")
-        tracking.set_active((uri, run_id))
-        try:
-            metrics = _check_metrics(spec.name, func(_stage_cfg(plan.parts), inputs, tmp / "out"))
-        finally:
-            tracking.set_active(None)
-        _check_outputs(spec, tmp / "out", "did not write")
-        seconds = time.perf_counter() - start
-        manifest = {
-            "stage": spec.name, "parts": plan.parts.to_json(), "metrics": metrics, "seconds": seconds,
-            "mlflow_run_id": run_id, "created": now_iso(),
-        }
-        return cache.commit(spec.name, plan.key, tmp, manifest)
-    except Exception as exc:
-        cache.abort(tmp)  # a failure, not an interruption: the next attempt starts clean
+    return tmp
+
+
+def _commit(plan: StagePlan, spec: StageSpec, cache: Cache, tmp: Path, metrics: dict[str, float], seconds: float,
+            run_id: str) -> Entry:
+    _check_outputs(spec, tmp / "out", "did not write")
+    manifest = {
+        "stage": spec.name, "parts": plan.parts.to_json(), "metrics": metrics, "seconds": seconds,
+        "mlflow_run_id": run_id, "created": now_iso(),
+    }
+    return cache.commit(spec.name, plan.key, tmp, manifest)
+
+
+def _failed(spec: StageSpec, cache: Cache, tmp: Path, exc: BaseException) -> None:
+    """A failure, not an interruption, leaves nothing to resume: the next attempt starts clean. An interruption
+    (KeyboardInterrupt / SystemExit on SIGTERM) keeps the work dir, and a re-run resumes from it."""
+    if isinstance(exc, Exception):
+        cache.abort(tmp)
         if not isinstance(exc, PipelineError):
             exc.pipeline_stage = spec.name  # the CLI reports it as this stage's failure, in one line
+
+
+def _compute(plan: StagePlan, spec: StageSpec, cache: Cache, inputs: dict[str, Path], run_id: str, uri: str,
+             launch: LaunchFile) -> Entry:
+    """Run the stage into its work dir and commit it; the caller holds the key's lock."""
+    tmp = _begin(plan, spec, cache, launch)
+    start = time.perf_counter()
+    try:
+        metrics = call_stage(spec, plan.parts, inputs, tmp / "out", (uri, run_id))
+        return _commit(plan, spec, cache, tmp, metrics, time.perf_counter() - start, run_id)
+    except BaseException as exc:
+        _failed(spec, cache, tmp, exc)
         raise
-    # KeyboardInterrupt / SystemExit (SIGTERM): the work dir stays, so a re-run resumes from it
 
 
 def _announce_hit(plan: StagePlan, spec: StageSpec) -> None:
@@ -208,33 +200,109 @@ def _stage_result(plan: StagePlan, entry: Entry, seconds: float, run_id: str) ->
     }
 
 
-def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, tracker, parent_id: str,
+def _lock(cache: Cache, plan: StagePlan):
+    return cache.lock(plan.name, plan.key,
+                      on_wait=lambda: _say(f"Stage '{plan.name}': waiting for another pipeline computing it"))
+
+
+def _still_missing(plan: StagePlan, cache: Cache, verify: str) -> bool:
+    """Under the key's lock: False when a concurrent pipeline computed the entry meanwhile (the plan becomes a hit);
+    a forced stage is computed again."""
+    if not plan.forced:
+        entry, _ = cache.lookup(plan.name, plan.key, verify)
+        if entry is not None:
+            plan.hit, plan.reason, plan.entry = True, "computed meanwhile by a concurrent pipeline", entry
+            return False
+    return True
+
+
+def _open_run(plan: StagePlan, spec: StageSpec, tracker, parent_id: str, outputs: dict[str, Path], settings: dict,
+              specs: dict[str, StageSpec], beside: list[str] = ()) -> tuple[StageInputs, str]:
+    """Announce the stage, gather its inputs and open its MLflow child run: (inputs, run id)."""
+    also = f"; beside {', '.join(repr(b) for b in beside)}" if beside else ""
+    _say(f"Running stage '{plan.name}' ({plan.reason}{also})")
+    inputs = _stage_inputs(spec, plan.parts, outputs, specs)
+    run_id = tracker.create_run(
+        plan.name, {"cache": "miss", "cache_key": plan.key, "stage": plan.name, **settings["run_tags"],
+                    **plan.parts.tags}, parent_id
+    )
+    return inputs, run_id
+
+
+def _run_stage(plan: StagePlan, spec: StageSpec, cache: Cache, tracker, parent_id: str,
                outputs: dict[str, Path], settings: dict, launch: LaunchFile, specs: dict[str, StageSpec]) -> dict:
-    name, key = plan.name, plan.key
+    """One stage in this process: a hit is recorded, a miss computed (under its key's lock) and recorded."""
     start = time.perf_counter()
-    entry = plan.entry
     if not plan.hit:
-        with cache.lock(name, key, on_wait=lambda: _say(f"Stage '{name}': waiting for another pipeline computing it")):
-            if not plan.forced:
-                entry, _ = cache.lookup(name, key, settings["verify"])
-                if entry is not None:
-                    plan.hit, plan.reason = True, "computed meanwhile by a concurrent pipeline"
-            if entry is None:
-                _say(f"Running stage '{name}' ({plan.reason})")
-                inputs = _stage_inputs(spec, plan.parts, outputs, specs)
-                run_id = tracker.create_run(
-                    name, {"cache": "miss", "cache_key": key, "stage": name, **settings["run_tags"], **plan.parts.tags},
-                    parent_id
-                )
+        with _lock(cache, plan):
+            if _still_missing(plan, cache, settings["verify"]):
+                inputs, run_id = _open_run(plan, spec, tracker, parent_id, outputs, settings, specs)
                 try:
-                    entry = _compute(plan, spec, cfg, cache, tracker, inputs, run_id, settings["uri"], launch)
+                    plan.entry = _compute(plan, spec, cache, inputs, run_id, settings["uri"], launch)
                 except BaseException:
                     tracker.end(run_id, "FAILED")
                     raise
-    plan.entry = entry
+    return _record(plan, spec, cache, tracker, parent_id, settings, time.perf_counter() - start)
+
+
+def _run_side_by_side(wave: list[StagePlan], specs: dict[str, StageSpec], cache: Cache, tracker, parent_id: str,
+                      outputs: dict[str, Path], settings: dict, launch: LaunchFile) -> dict[str, dict]:
+    """The wave's stages at once, each in a process of its own (``pipeline.schedule``); their locks, work dirs,
+    commits and MLflow runs stay in this process. A stage that fails does not stop the others: their entries are
+    committed and recorded, then the first failure is raised."""
+    results: dict[str, dict] = {}
+    errors: list[BaseException] = []
+    with ExitStack() as locks:
+        for plan in wave:
+            locks.enter_context(_lock(cache, plan))
+        missing = [p for p in wave if _still_missing(p, cache, settings["verify"])]
+        jobs, runs, work = {}, {}, {}
+        for plan in missing:
+            spec = specs[plan.name]
+            inputs, runs[plan.name] = _open_run(plan, spec, tracker, parent_id, outputs, settings, specs,
+                                                [p.name for p in missing if p is not plan])
+            work[plan.name] = _begin(plan, spec, cache, launch)
+            jobs[plan.name] = Job(spec, plan.parts, inputs, work[plan.name] / "out", (settings["uri"], runs[plan.name]))
+
+        def answered(name: str, outcome: Outcome, running: list[str]) -> None:
+            still = f"; {', '.join(repr(r) for r in running)} still running" if running else ""
+            verb = "done" if outcome.error is None else "failed"
+            _say(f"Stage '{name}' {verb} in {outcome.seconds:.1f} s{still}")
+
+        try:
+            outcomes = run_side_by_side(jobs, answered) if jobs else {}
+        except BaseException:  # interrupted: the work dirs stay for a re-run to resume from
+            for run_id in runs.values():
+                tracker.end(run_id, "FAILED")
+            raise
+        for plan in missing:
+            spec, outcome, tmp = specs[plan.name], outcomes[plan.name], work[plan.name]
+            try:
+                if outcome.error is not None:
+                    raise outcome.error
+                plan.entry = _commit(plan, spec, cache, tmp, outcome.metrics, outcome.seconds, runs[plan.name])
+            except BaseException as exc:
+                _failed(spec, cache, tmp, exc)
+                if outcome.traceback:
+                    exc.stage_traceback = outcome.traceback  # where it failed, in the stage's process
+                tracker.end(runs[plan.name], "FAILED")
+                errors.append(exc)
+    for plan in wave:
+        if plan.entry is not None:
+            seconds = outcomes[plan.name].seconds if plan.name in outcomes else 0.0
+            results[plan.name] = _record(plan, specs[plan.name], cache, tracker, parent_id, settings, seconds,
+                                         announce_done=False)
+    if errors:
+        raise errors[0]
+    return results
+
+
+def _record(plan: StagePlan, spec: StageSpec, cache: Cache, tracker, parent_id: str, settings: dict,
+            seconds: float, announce_done: bool = True) -> dict:
+    """Log the stage's run (a hit gets a run of its own naming the run that computed it) and its result."""
+    name, key, entry = plan.name, plan.key, plan.entry
     if plan.hit:
         _announce_hit(plan, spec)
-    seconds = time.perf_counter() - start
     metrics = dict(entry.manifest.get("metrics", {}))
     computed_by = entry.manifest.get("mlflow_run_id", "")
     if plan.hit:
@@ -245,7 +313,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cfg: DictConfig, cache: Cache, 
     else:
         run_id = computed_by
         tracker.log_artifacts(run_id, str(entry.out_dir / "artifacts"))
-        _say(f"Stage '{name}' done in {seconds:.1f} s")
+        if announce_done:
+            _say(f"Stage '{name}' done in {seconds:.1f} s")
     tracker.log(run_id, metrics={**metrics, f"{name}.seconds": seconds},
                 tags={"computed_by_run": computed_by, "computed_seconds": f"{entry.manifest.get('seconds', 0):.3f}"})
     tracker.end(run_id, "FINISHED")
@@ -348,7 +417,7 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     estimates = [e for p in plans if not p.hit and estimating
                  if (e := estimate_stage(specs[p.name], cfg, _context(settings))) is not None]
     if estimates:
-        _say(format_estimates(estimates, budget, str(cfg.get("profile_name", ""))))
+        _say(format_estimates(estimates, budget, str(cfg.get("profile_name", "")), _waves(plans, specs, cfg, launch)))
     launch.start({p.name: p.key for p in plans}, sized_values(sized))
     if rank.world_size > 1:
         _say(f"{rank.described} (launch {launch.launch_id}): this rank plans, tracks and writes the cache")
@@ -434,6 +503,35 @@ def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, r
     return summary
 
 
+def _waves(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig, launch: LaunchFile) -> list[list[str]]:
+    """The misses grouped into the waves that run one after the other (``pipeline.schedule``)."""
+    misses = [p for p in plans if not p.hit]
+    if launch.rank.world_size > 1:
+        return [[p.name] for p in misses]
+    threads = {p.name: stage_threads(p.name, specs[p.name].threads, cfg) for p in misses}
+    return waves([p.name for p in misses], {p.name: specs[p.name].inputs for p in misses}, threads, cores(cfg))
+
+
+def _steps(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig,
+           launch: LaunchFile) -> list[list[StagePlan]]:
+    """The plans in the order they run: each hit alone (it computes nothing), the misses in the waves of
+    ``pipeline.schedule``, each wave after the hits planned before its last stage. A launch of several ranks runs
+    one stage at a time: its ranks follow rank 0 stage by stage."""
+    grouped = _waves(plans, specs, cfg, launch)
+    by_name = {p.name: p for p in plans}
+    position = {p.name: i for i, p in enumerate(plans)}
+    steps, next_hit = [], 0
+    for wave in grouped:
+        last = max(position[n] for n in wave)
+        for plan in plans[next_hit:last + 1]:
+            if plan.hit:
+                steps.append([plan])
+        next_hit = max(next_hit, last + 1)
+        steps.append([by_name[n] for n in wave])
+    steps.extend([p] for p in plans[next_hit:] if p.hit)
+    return steps
+
+
 def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0,
              launch: LaunchFile, estimates=(), sized=()) -> dict:
     parent_tags = {**record["tags"], DIGEST_TAG: record["digest"]}
@@ -445,13 +543,18 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
     try:
-        for plan in plans:
-            results[plan.name] = _run_stage(plan, specs[plan.name], cfg, cache, tracker, parent_id, outputs, settings,
-                                            launch, specs)
-            outputs[plan.name] = Path(results[plan.name]["output_dir"])
+        for step in _steps(plans, specs, cfg, launch):
+            if len(step) == 1:
+                results[step[0].name] = _run_stage(step[0], specs[step[0].name], cache, tracker, parent_id, outputs,
+                                                   settings, launch, specs)
+            else:
+                results.update(_run_side_by_side(step, specs, cache, tracker, parent_id, outputs, settings, launch))
+            for plan in step:
+                outputs[plan.name] = Path(results[plan.name]["output_dir"])
     except BaseException:
         tracker.end(parent_id, "FAILED")
         raise
+    results = {p.name: results[p.name] for p in plans}  # the plan's order, whatever ran beside what
     total = time.perf_counter() - t0
     parent_metrics = {"pipeline.seconds": total}
     for name, r in results.items():
@@ -594,6 +697,6 @@ def _join_stage(spec: StageSpec, parts: KeyParts, inputs: dict[str, Path], compu
             out.mkdir()
         func = load_hook(spec.name, "run", f"{spec.module}:{spec.function}")
         tracking.set_active(None)  # only rank 0 logs
-        func(_stage_cfg(parts), inputs, out)
+        func(stage_cfg(parts), inputs, out)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

@@ -1,0 +1,135 @@
+"""Calling a stage's function, in this process or in one of its own beside other stages (``pipeline.schedule``).
+
+The engine keeps everything else (locks, the cache's work dirs and commits, MLflow runs) in its own process: a
+stage computed in a child process only runs its function there and sends back its metrics or its error.
+"""
+
+from __future__ import annotations
+
+import copy
+import multiprocessing as mp
+import pickle
+import time
+import traceback
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from pipeline import tracking
+from pipeline.dag import StageSpec, load_hook
+from pipeline.errors import PipelineError
+from pipeline.keys import KeyParts
+
+
+def check_metrics(stage: str, metrics) -> dict[str, float]:
+    if metrics is None:
+        return {}
+    if not isinstance(metrics, dict):
+        raise PipelineError(f"stage '{stage}' returned {type(metrics).__name__}, expected a dict of metrics")
+    out = {}
+    for k, v in metrics.items():
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise PipelineError(f"stage '{stage}': metric {k!r} is {v!r}, expected a number")
+        out[str(k)] = float(v)
+    return out
+
+
+def stage_cfg(parts: KeyParts) -> DictConfig:
+    """Only the declared keys (and what the stage's resolve hook added), resolved: exactly what the key hashes,
+    read-only."""
+    sub = OmegaConf.create(parts.config)
+    OmegaConf.set_readonly(sub, True)
+    OmegaConf.set_struct(sub, True)
+    return sub
+
+
+def call_stage(spec: StageSpec, parts: KeyParts, inputs, out_dir: Path, run: tuple[str, str]) -> dict[str, float]:
+    """The stage's function on its config and inputs, writing into ``out_dir``; ``run`` is (tracking URI, MLflow
+    run id) of its child run, which the stage may log to (``pipeline.tracking``)."""
+    func = load_hook(spec.name, "run", f"{spec.module}:{spec.function}")
+    tracking.set_active(run)
+    try:
+        return check_metrics(spec.name, func(stage_cfg(parts), inputs, out_dir))
+    finally:
+        tracking.set_active(None)
+
+
+@dataclass
+class Job:
+    """A stage to compute in a process of its own: what ``call_stage`` takes."""
+
+    spec: StageSpec
+    parts: KeyParts
+    inputs: object  # pipeline.outputs.StageInputs
+    out_dir: Path
+    run: tuple[str, str]
+
+
+@dataclass
+class Outcome:
+    """What a stage's process sent back: its metrics, or its error (re-raised by the engine) and the traceback
+    it had there; ``seconds`` from the start of the processes to its answer."""
+
+    metrics: dict[str, float] | None
+    error: BaseException | None
+    traceback: str
+    seconds: float
+
+
+def _child(conn, job: Job) -> None:
+    try:
+        conn.send(("ok", call_stage(job.spec, job.parts, job.inputs, job.out_dir, job.run), ""))
+    except BaseException as exc:  # sent back whatever it is: the engine decides (an interrupt keeps the work dir)
+        text = traceback.format_exc()
+        try:
+            copy.copy(exc)  # rebuilt from its arguments, as the engine's side of the pipe will
+            pickle.dumps(exc)
+        except Exception:  # an exception that does not travel: its type and message do
+            exc = RuntimeError(f"{type(exc).__name__}: {exc}")
+        conn.send(("error", exc, text))
+    finally:
+        conn.close()
+
+
+def run_side_by_side(jobs: dict[str, Job], answered=None) -> dict[str, Outcome]:
+    """Each job's stage in a spawned process of its own, all at once; waits for every one (a failure does not stop
+    the others: what they compute is kept). ``answered(name, outcome, still_running)`` is called as each answers.
+    An interrupt of the engine stops them all."""
+    ctx = mp.get_context("spawn")  # a fresh interpreter: no torch threads or locks inherited from the engine
+    start = time.perf_counter()
+    procs, pending = {}, {}
+    try:
+        for name, job in jobs.items():
+            receive, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_child, args=(send, job), name=f"stage-{name}")
+            proc.start()
+            send.close()
+            procs[name], pending[receive] = proc, name
+        outcomes: dict[str, Outcome] = {}
+        while pending:
+            for receive in wait(list(pending)):
+                name = pending.pop(receive)
+                seconds = time.perf_counter() - start
+                try:
+                    kind, payload, text = receive.recv()
+                except EOFError:  # the process died without a word (killed, out of memory)
+                    procs[name].join()
+                    error = PipelineError(f"stage '{name}': its process exited with code {procs[name].exitcode} "
+                                          "before it answered")
+                    outcomes[name] = Outcome(None, error, "", seconds)
+                else:
+                    ok = kind == "ok"
+                    outcomes[name] = Outcome(payload if ok else None, None if ok else payload, text, seconds)
+                if answered is not None:
+                    answered(name, outcomes[name], [n for n in jobs if n not in outcomes])
+    except BaseException:  # the engine was interrupted (or failed): stop what still runs
+        for proc in procs.values():
+            if proc.is_alive():
+                proc.terminate()
+        raise
+    finally:
+        for proc in procs.values():
+            proc.join()
+    return outcomes
