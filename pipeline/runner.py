@@ -411,13 +411,14 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
     cache = Cache(settings["cache_dir"])
     plans = _plan(specs, selected, cfg, cache, settings["force"], settings["verify"], _context(settings))
     _say(format_plan(plans, str(cache.root), left_out))
+    grouped = _waves(plans, specs, cfg, launch)  # before anything runs: a bad threads value stops the run here
     # only the stages that will run: a hit never calls its hook (an all-hit re-run imports no stage code)
     # pipeline.estimate: false skips the hooks (a probe costs seconds: the smoke profile's tests run hundreds of plans)
     estimating = bool(OmegaConf.select(cfg, "pipeline.estimate", default=True))
     estimates = [e for p in plans if not p.hit and estimating
                  if (e := estimate_stage(specs[p.name], cfg, _context(settings))) is not None]
     if estimates:
-        _say(format_estimates(estimates, budget, str(cfg.get("profile_name", "")), _waves(plans, specs, cfg, launch)))
+        _say(format_estimates(estimates, budget, str(cfg.get("profile_name", "")), grouped))
     launch.start({p.name: p.key for p in plans}, sized_values(sized))
     if rank.world_size > 1:
         _say(f"{rank.described} (launch {launch.launch_id}): this rank plans, tracks and writes the cache")
@@ -441,8 +442,8 @@ def _run_rank_zero(cfg, rank: Rank, settings, launch: LaunchFile, run_dir, launc
         return _use_recorded(recorded, specs, plans, cache, settings, run_dir, left_out, t0)
     tracker = tracker or open_tracker(settings["uri"], settings["experiment"], in_process_tracking)
     try:
-        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch, estimates,
-                        sized)
+        return _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0, launch, grouped,
+                        estimates, sized)
     finally:
         tracker.close()
 
@@ -504,7 +505,8 @@ def _use_recorded(recorded: RecordedRun, specs, plans, cache: Cache, settings, r
 
 
 def _waves(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig, launch: LaunchFile) -> list[list[str]]:
-    """The misses grouped into the waves that run one after the other (``pipeline.schedule``)."""
+    """The misses grouped into the waves that run one after the other (``pipeline.schedule``). A launch of several
+    ranks runs one stage at a time: its other ranks follow rank 0 stage by stage."""
     misses = [p for p in plans if not p.hit]
     if launch.rank.world_size > 1:
         return [[p.name] for p in misses]
@@ -512,12 +514,9 @@ def _waves(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig,
     return waves([p.name for p in misses], {p.name: specs[p.name].inputs for p in misses}, threads, cores(cfg))
 
 
-def _steps(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig,
-           launch: LaunchFile) -> list[list[StagePlan]]:
+def _steps(plans: list[StagePlan], grouped: list[list[str]]) -> list[list[StagePlan]]:
     """The plans in the order they run: each hit alone (it computes nothing), the misses in the waves of
-    ``pipeline.schedule``, each wave after the hits planned before its last stage. A launch of several ranks runs
-    one stage at a time: its ranks follow rank 0 stage by stage."""
-    grouped = _waves(plans, specs, cfg, launch)
+    ``pipeline.schedule``, each wave after the hits planned before its last stage."""
     by_name = {p.name: p for p in plans}
     position = {p.name: i for i, p in enumerate(plans)}
     steps, next_hit = [], 0
@@ -533,7 +532,7 @@ def _steps(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig,
 
 
 def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_out, t0,
-             launch: LaunchFile, estimates=(), sized=()) -> dict:
+             launch: LaunchFile, grouped: list[list[str]], estimates=(), sized=()) -> dict:
     parent_tags = {**record["tags"], DIGEST_TAG: record["digest"]}
     # Every stage child run carries them too: a child row alone says which seed and code made it.
     settings["run_tags"] = {k: parent_tags[k] for k in ("profile", "seed", "git_commit")}
@@ -543,7 +542,7 @@ def _run_all(cfg, specs, plans, cache, tracker, settings, run_dir, record, left_
     results: dict[str, dict] = {}
     outputs: dict[str, Path] = {}
     try:
-        for step in _steps(plans, specs, cfg, launch):
+        for step in _steps(plans, grouped):
             if len(step) == 1:
                 results[step[0].name] = _run_stage(step[0], specs[step[0].name], cache, tracker, parent_id, outputs,
                                                    settings, launch, specs)
