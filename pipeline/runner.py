@@ -34,7 +34,7 @@ from pipeline.report import summary_table, write_summary
 from pipeline.run_record import DIGEST_TAG, UNKNOWN, RecordedRun, find_in_sqlite, run_digest
 from pipeline.schedule import cores, stage_threads, waves
 from pipeline.sizing import apply_sized, format_sized, size_stages, sized_params, sized_values
-from pipeline.stage_call import Job, Outcome, call_stage, run_side_by_side, stage_cfg
+from pipeline.stage_call import Job, Outcome, StageProcessDied, call_stage, run_side_by_side, stage_cfg
 from pipeline.tracker import check_server, flatten_params, open_tracker
 
 
@@ -160,8 +160,9 @@ def _commit(plan: StagePlan, spec: StageSpec, cache: Cache, tmp: Path, metrics: 
 
 def _failed(spec: StageSpec, cache: Cache, tmp: Path, exc: BaseException) -> None:
     """A failure, not an interruption, leaves nothing to resume: the next attempt starts clean. An interruption
-    (KeyboardInterrupt / SystemExit on SIGTERM) keeps the work dir, and a re-run resumes from it."""
-    if isinstance(exc, Exception):
+    (KeyboardInterrupt / SystemExit on SIGTERM, a stage's process killed) keeps the work dir, and a re-run resumes
+    from it."""
+    if isinstance(exc, Exception) and not isinstance(exc, StageProcessDied):
         cache.abort(tmp)
         if not isinstance(exc, PipelineError):
             exc.pipeline_stage = spec.name  # the CLI reports it as this stage's failure, in one line

@@ -56,6 +56,11 @@ def call_stage(spec: StageSpec, parts: KeyParts, inputs, out_dir: Path, run: tup
         tracking.set_active(None)
 
 
+class StageProcessDied(PipelineError):
+    """A stage's process ended without answering (killed, out of memory): like an interrupted stage, not a failed
+    one, its work dir stays for the next attempt to resume from."""
+
+
 @dataclass
 class Job:
     """A stage to compute in a process of its own: what ``call_stage`` takes."""
@@ -116,8 +121,8 @@ def run_side_by_side(jobs: dict[str, Job], answered=None) -> dict[str, Outcome]:
                     kind, payload, text = receive.recv()
                 except EOFError:  # the process died without a word (killed, out of memory)
                     procs[name].join()
-                    error = PipelineError(f"stage '{name}': its process exited with code {procs[name].exitcode} "
-                                          "before it answered")
+                    error = StageProcessDied(f"stage '{name}': its process exited with code {procs[name].exitcode} "
+                                             "before it answered; its work dir is kept for a re-run to resume from")
                     outcomes[name] = Outcome(None, error, "", seconds)
                 else:
                     ok = kind == "ok"

@@ -59,13 +59,15 @@ def run(cfg, inputs, out_dir):
             raise RuntimeError(f"{me.name} never met {me.other}: the stages did not run side by side")
         time.sleep(0.05)
     (out_dir / "pid.txt").write_text(str(os.getpid()))
-    if me.fail:
+    if me.fail == "raise":
         raise ValueError(f"{me.name} failed on purpose")
+    if me.fail == "die":
+        os._exit(3)  # as if killed: no answer
     return {f"{me.name}.met": 1.0}
 """
 
 
-def _meeting(toy, fail: str = ""):
+def _meeting(toy, fail: str = "", how: str = "raise"):
     (toy.root / toy.package / "meet").mkdir()
     (toy.root / toy.package / "meet" / "__init__.py").write_text("")
     (toy.root / toy.package / "meet" / "stage.py").write_text(textwrap.dedent(MEET))
@@ -73,7 +75,8 @@ def _meeting(toy, fail: str = ""):
     rendezvous.mkdir(exist_ok=True)
     dotted = {"pipeline__cores": 2}
     for me, other in (("m1", "m2"), ("m2", "m1")):
-        dotted[f"meet_{me}"] = {"name": me, "other": other, "dir": str(rendezvous), "threads": 1, "fail": me == fail}
+        dotted[f"meet_{me}"] = {"name": me, "other": other, "dir": str(rendezvous), "threads": 1,
+                                "fail": how if me == fail else ""}
         dotted[f"pipeline__stages__{me}"] = {"run": f"{toy.package}.meet.stage:run", "inputs": ["a"],
                                              "config": [f"meet_{me}"], "threads": f"meet_{me}.threads"}
     return toy.config(**dotted), rendezvous
@@ -110,10 +113,21 @@ def test_a_stage_that_fails_beside_another_keeps_the_others_entry_and_reports_it
     assert [r.info.status for r in m2_runs] == ["FAILED"]
     assert not [p for p in (toy.root / "cache" / "m2").iterdir() if p.name.startswith(".partial-")], \
         "a failure leaves no work dir to resume from"
-    cfg.meet_m2.fail = False  # alone now (m1 is a hit), it finds m1's word from before
+    cfg.meet_m2.fail = ""  # alone now (m1 is a hit), it finds m1's word from before
     summary = run_pipeline(cfg, run_dir=toy.root / "fixed", in_process_tracking=True)
     assert summary["stages"]["m1"]["hit"], "what m1 computed beside the failure was kept"
     assert not summary["stages"]["m2"]["hit"]
+
+
+def test_a_stage_whose_process_dies_keeps_its_work_dir_for_a_re_run(toy):
+    cfg, _ = _meeting(toy, fail="m2", how="die")
+    with pytest.raises(PipelineError, match="stage 'm2': its process exited with code 3 before it answered"):
+        run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    partial = [p for p in (toy.root / "cache" / "m2").iterdir() if p.name.startswith(".partial-")]
+    assert len(partial) == 1 and (partial[0] / "out" / "pid.txt").is_file(), "what it wrote is kept"
+    cfg.meet_m2.fail = ""
+    summary = run_pipeline(cfg, run_dir=toy.root / "again", in_process_tracking=True)
+    assert summary["stages"]["m1"]["hit"] and not summary["stages"]["m2"]["hit"]
 
 
 def test_a_threads_key_outside_the_stages_config_is_refused(toy):
