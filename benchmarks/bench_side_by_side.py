@@ -8,7 +8,7 @@ The variants alternate (a, b, a, b, ...) so that a change of load on a shared ma
 medians. The data and priors are generated once, before the first timing, in a cache of the benchmark's own.
 Run it on an otherwise idle host: a third CPU-bound process makes either variant wait for a core.
 
-    python -m benchmarks.bench_side_by_side [--repeats N] [--relation-epochs E] [--facing-epochs E]
+    python -m benchmarks.bench_side_by_side [--repeats N] [--relation-epochs E] [--facing-epochs E] [--precision P]
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> dict:
     # with the default relation epochs the two stages take about as long side by side, as in the quick run (four
     # relation networks of ~10 epochs each, 20 facing epochs)
     parser.add_argument("--facing-epochs", type=int, default=5, help="epochs of the facing network")
+    parser.add_argument("--precision", default=None,
+                        help="trainer.precision for both (e.g. 32-true: fp32, as on a host without bf16)")
     parser.add_argument("--timeout", type=float, default=1800, help="seconds per pipeline run")
     args = parser.parse_args(argv)
     if (os.cpu_count() or 1) < 2:
@@ -56,6 +58,8 @@ def main(argv: list[str] | None = None) -> dict:
         return {}
     budget = [f"relation.train.epochs={args.relation_epochs}", f"facing.train.epochs={args.facing_epochs}",
               "pipeline.skip=[shift_data,detector,export]"]  # export out: evaluate and bev, which need it, too
+    if args.precision:
+        budget.append(f"trainer.precision={args.precision}")
     times: dict[str, list[float]] = {name: [] for name in VARIANTS}
     with tempfile.TemporaryDirectory(prefix="bench_side_by_side_") as tmp:
         root = Path(tmp)
@@ -72,7 +76,8 @@ def main(argv: list[str] | None = None) -> dict:
                       f"the pair {pair:6.1f} s  (repeat {repeat + 1}, load {os.getloadavg()[0]:.1f})", flush=True)
     medians = {name: statistics.median(t) for name, t in times.items()}
     (one, both) = medians.values()
-    print(f"relation and facing ({args.relation_epochs} and {args.facing_epochs} epochs): one at a time {one:.1f} s, "
+    print(f"relation and facing ({args.relation_epochs} and {args.facing_epochs} epochs, precision "
+          f"{args.precision or 'auto'}): one at a time {one:.1f} s, "
           f"side by side {both:.1f} s; side by side / one at a time = {both / one:.2f}")
     return medians
 
