@@ -248,8 +248,8 @@ def _run_stage(plan: StagePlan, spec: StageSpec, cache: Cache, tracker, parent_i
 
 def _run_side_by_side(wave: list[StagePlan], specs: dict[str, StageSpec], cache: Cache, tracker, parent_id: str,
                       outputs: dict[str, Path], settings: dict, launch: LaunchFile) -> dict[str, dict]:
-    """The wave's stages at once, each in a process of its own (``pipeline.schedule``); their locks, work dirs,
-    commits and MLflow runs stay in this process. A stage that fails does not stop the others: their entries are
+    """The wave's stages at once (``pipeline.schedule``): an ``every_rank`` stage in this process, each other one in
+    a process of its own; their locks, work dirs, commits and MLflow runs stay in this process. A stage that fails does not stop the others: their entries are
     committed and recorded, then the first failure is raised."""
     results: dict[str, dict] = {}
     errors: list[BaseException] = []
@@ -271,7 +271,8 @@ def _run_side_by_side(wave: list[StagePlan], specs: dict[str, StageSpec], cache:
             _say(f"Stage '{name}' {verb} in {outcome.seconds:.1f} s{still}")
 
         try:
-            outcomes = run_side_by_side(jobs, answered) if jobs else {}
+            here = next((n for n in jobs if specs[n].every_rank), None)  # its ranks follow this process
+            outcomes = run_side_by_side(jobs, answered, here) if jobs else {}
         except BaseException:  # interrupted: the work dirs stay for a re-run to resume from
             for run_id in runs.values():
                 tracker.end(run_id, "FAILED")
@@ -512,7 +513,8 @@ def _waves(plans: list[StagePlan], specs: dict[str, StageSpec], cfg: DictConfig,
     if launch.rank.world_size > 1:
         return [[p.name] for p in misses]
     threads = {p.name: stage_threads(p.name, specs[p.name].threads, cfg) for p in misses}
-    return waves([p.name for p in misses], {p.name: specs[p.name].inputs for p in misses}, threads, cores(cfg))
+    return waves([p.name for p in misses], {p.name: specs[p.name].inputs for p in misses}, threads, cores(cfg),
+                 {p.name for p in misses if specs[p.name].every_rank})
 
 
 def _steps(plans: list[StagePlan], grouped: list[list[str]]) -> list[list[StagePlan]]:

@@ -4,9 +4,11 @@ A stage may declare ``threads: <config key>``, the key that holds how many CPU t
 ``relation.train.threads``). Stages that declare one and whose inputs are ready run side by side, as long as their
 threads add up to at most ``pipeline.cores``; every other stage runs alone, on the whole host. Two small networks
 each trained on one thread side by side finish sooner than one after the other on two threads each: neither
-fills two cores (on a 2-core host with bf16 the relation and facing stages take ~490 s side by side against
+fills two cores (on a 2-core host with bf16 the relation and facing stages take 458-494 s side by side against
 ~690 s one after the other, docs/engine.md). A stage that fills the host (the detector, near the host's peak
 matrix-product rate) gains nothing from it, and a thread more than there are cores costs it many times over.
+
+A wave holds at most one stage that must run in the engine's own process (``every_rank``).
 
 The waves depend only on the plan and the configured thread counts, never on timing: the same config runs the same
 stages together, and every stage computes from the same inputs and settings whichever runs beside it.
@@ -51,12 +53,14 @@ def stage_threads(name: str, key: str | None, cfg: DictConfig) -> int | None:
 
 
 def waves(order: list[str], inputs: dict[str, tuple[str, ...]], threads: dict[str, int | None],
-          available: int) -> list[list[str]]:
+          available: int, in_process: set[str] = frozenset()) -> list[list[str]]:
     """``order`` (the stages to compute, in dependency order) grouped into waves run one after the other.
 
     A wave starts with the first stage whose inputs are done (a stage not in ``order`` counts as done: a cache
     hit or left out) and takes, in order, every other ready stage that declares threads while the wave's threads
-    stay within ``available``. A stage that declares none, or declares more than ``available``, runs alone.
+    stay within ``available``. A stage that declares none, or declares more than ``available``, runs alone. A wave
+    holds at most one of the ``in_process`` stages: those run in the engine's own process (``every_rank`` stages,
+    whose other ranks follow that process stage by stage).
     """
     done: set[str] = set()
     remaining = list(order)
@@ -69,7 +73,8 @@ def waves(order: list[str], inputs: dict[str, tuple[str, ...]], threads: dict[st
         if used is not None and used < available:
             for name in ready[1:]:
                 t = threads[name]
-                if t is not None and used + t <= available:
+                if t is not None and used + t <= available \
+                        and not (name in in_process and any(w in in_process for w in wave)):
                     wave.append(name)
                     used += t
         out.append(wave)

@@ -1,7 +1,9 @@
 """Calling a stage's function, in this process or in one of its own beside other stages (``pipeline.schedule``).
 
 The engine keeps everything else (locks, the cache's work dirs and commits, MLflow runs) in its own process: a
-stage computed in a child process only runs its function there and sends back its metrics or its error.
+stage computed in a child process only runs its function there and sends back its metrics or its error. A stage
+whose other ranks follow the engine's process (``every_rank``: Lightning's DDP launcher re-runs the engine's
+command for them) runs in the engine's process, beside the others' processes.
 """
 
 from __future__ import annotations
@@ -74,8 +76,8 @@ class Job:
 
 @dataclass
 class Outcome:
-    """What a stage's process sent back: its metrics, or its error (re-raised by the engine) and the traceback
-    it had there; ``seconds`` from the start of the processes to its answer."""
+    """What a stage sent back: its metrics, or its error (re-raised by the engine) and, from a process of its own,
+    the traceback it had there; ``seconds`` the stage took."""
 
     metrics: dict[str, float] | None
     error: BaseException | None
@@ -83,9 +85,21 @@ class Outcome:
     seconds: float
 
 
-def _child(conn, job: Job) -> None:
+def _call(job: Job) -> Outcome:
+    """The job's stage, here; its error caught into the outcome (an interrupt propagates)."""
+    start = time.perf_counter()
     try:
-        conn.send(("ok", call_stage(job.spec, job.parts, job.inputs, job.out_dir, job.run), ""))
+        metrics = call_stage(job.spec, job.parts, job.inputs, job.out_dir, job.run)
+    except Exception as exc:
+        return Outcome(None, exc, "", time.perf_counter() - start)
+    return Outcome(metrics, None, "", time.perf_counter() - start)
+
+
+def _child(conn, job: Job) -> None:
+    start = time.perf_counter()
+    try:
+        metrics = call_stage(job.spec, job.parts, job.inputs, job.out_dir, job.run)
+        conn.send(("ok", metrics, "", time.perf_counter() - start))
     except BaseException as exc:  # sent back whatever it is: the engine decides (an interrupt keeps the work dir)
         text = traceback.format_exc()
         try:
@@ -93,42 +107,49 @@ def _child(conn, job: Job) -> None:
             pickle.dumps(exc)
         except Exception:  # an exception that does not travel: its type and message do
             exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-        conn.send(("error", exc, text))
+        conn.send(("error", exc, text, time.perf_counter() - start))
     finally:
         conn.close()
 
 
-def run_side_by_side(jobs: dict[str, Job], answered=None) -> dict[str, Outcome]:
-    """Each job's stage in a spawned process of its own, all at once; waits for every one (a failure does not stop
-    the others: what they compute is kept). ``answered(name, outcome, still_running)`` is called as each answers.
-    An interrupt of the engine stops them all."""
+def run_side_by_side(jobs: dict[str, Job], answered=None, here: str | None = None) -> dict[str, Outcome]:
+    """Each job's stage at once: ``here`` (if given) in this process, every other one in a spawned process of its
+    own. Waits for every one (a failure does not stop the others: what they compute is kept).
+    ``answered(name, outcome, still_running)`` is called as each answers. An interrupt stops them all."""
     ctx = mp.get_context("spawn")  # a fresh interpreter: no torch threads or locks inherited from the engine
     start = time.perf_counter()
     procs, pending = {}, {}
+    outcomes: dict[str, Outcome] = {}
+
+    def answer(name: str, outcome: Outcome) -> None:
+        outcomes[name] = outcome
+        if answered is not None:
+            answered(name, outcome, [n for n in jobs if n not in outcomes])
+
     try:
         for name, job in jobs.items():
+            if name == here:
+                continue
             receive, send = ctx.Pipe(duplex=False)
             proc = ctx.Process(target=_child, args=(send, job), name=f"stage-{name}")
             proc.start()
             send.close()
             procs[name], pending[receive] = proc, name
-        outcomes: dict[str, Outcome] = {}
+        if here is not None:
+            answer(here, _call(jobs[here]))
         while pending:
             for receive in wait(list(pending)):
                 name = pending.pop(receive)
-                seconds = time.perf_counter() - start
                 try:
-                    kind, payload, text = receive.recv()
+                    kind, payload, text, seconds = receive.recv()
                 except EOFError:  # the process died without a word (killed, out of memory)
                     procs[name].join()
                     error = StageProcessDied(f"stage '{name}': its process exited with code {procs[name].exitcode} "
                                              "before it answered; its work dir is kept for a re-run to resume from")
-                    outcomes[name] = Outcome(None, error, "", seconds)
-                else:
-                    ok = kind == "ok"
-                    outcomes[name] = Outcome(payload if ok else None, None if ok else payload, text, seconds)
-                if answered is not None:
-                    answered(name, outcomes[name], [n for n in jobs if n not in outcomes])
+                    answer(name, Outcome(None, error, "", time.perf_counter() - start))
+                    continue
+                ok = kind == "ok"
+                answer(name, Outcome(payload if ok else None, None if ok else payload, text, seconds))
     except BaseException:  # the engine was interrupted (or failed): stop what still runs
         for proc in procs.values():
             if proc.is_alive():

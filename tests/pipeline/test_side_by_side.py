@@ -29,10 +29,15 @@ def test_the_default_pipelines_waves_on_two_cores():
         ["data"], ["shift_data"], ["priors"], ["relation", "facing"], ["detector"], ["export"], ["evaluate"], ["bev"]]
 
 
-def test_on_four_cores_the_detector_joins_the_wave_and_on_one_every_stage_runs_alone():
+def test_more_cores_fit_more_stages_in_a_wave_and_on_one_every_stage_runs_alone():
     assert ["relation", "detector", "facing"] in waves(ORDER, INPUTS, THREADS, 4)
     assert all(len(w) == 1 for w in waves(ORDER, INPUTS, THREADS, 1))
     assert [n for w in waves(ORDER, INPUTS, THREADS, 1) for n in w] == ORDER
+
+
+def test_stages_whose_ranks_follow_the_engine_never_share_a_wave():
+    # every_rank stages (relation, detector) run in the engine's process, whose command other ranks re-run
+    assert waves(ORDER, INPUTS, THREADS, 4, {"relation", "detector"})[3:5] == [["relation", "facing"], ["detector"]]
 
 
 def test_a_wave_never_holds_a_stage_and_its_input_nor_one_that_declares_no_threads():
@@ -67,7 +72,7 @@ def run(cfg, inputs, out_dir):
 """
 
 
-def _meeting(toy, fail: str = "", how: str = "raise"):
+def _meeting(toy, fail: str = "", how: str = "raise", every_rank: str = ""):
     (toy.root / toy.package / "meet").mkdir()
     (toy.root / toy.package / "meet" / "__init__.py").write_text("")
     (toy.root / toy.package / "meet" / "stage.py").write_text(textwrap.dedent(MEET))
@@ -78,7 +83,8 @@ def _meeting(toy, fail: str = "", how: str = "raise"):
         dotted[f"meet_{me}"] = {"name": me, "other": other, "dir": str(rendezvous), "threads": 1,
                                 "fail": how if me == fail else ""}
         dotted[f"pipeline__stages__{me}"] = {"run": f"{toy.package}.meet.stage:run", "inputs": ["a"],
-                                             "config": [f"meet_{me}"], "threads": f"meet_{me}.threads"}
+                                             "config": [f"meet_{me}"], "threads": f"meet_{me}.threads",
+                                             "every_rank": me == every_rank}
     return toy.config(**dotted), rendezvous
 
 
@@ -100,6 +106,13 @@ def test_two_stages_that_declare_one_thread_run_at_once_in_processes_of_their_ow
         path.unlink()
     again = run_pipeline(cfg, run_dir=toy.root / "again", in_process_tracking=True)
     assert all(s["hit"] for s in again["stages"].values())
+
+
+def test_an_every_rank_stage_runs_in_the_engines_process_beside_the_others(toy):
+    cfg, rendezvous = _meeting(toy, every_rank="m1")
+    summary = run_pipeline(cfg, run_dir=toy.root / "run", in_process_tracking=True)
+    assert int((rendezvous / "m1").read_text()) == os.getpid() != int((rendezvous / "m2").read_text())
+    assert summary["stages"]["m1"]["metrics"] == {"m1.met": 1.0} and not summary["stages"]["m2"]["hit"]
 
 
 def test_a_stage_that_fails_beside_another_keeps_the_others_entry_and_reports_its_own_error(toy):
