@@ -23,6 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from pipeline.schedule import host_cores
+
 REPO = Path(__file__).resolve().parents[1]
 VARIANTS = {
     "one at a time, two threads each": ["pipeline.cores=1", "relation.train.threads=2", "facing.train.threads=2"],
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> dict:
                         help="trainer.precision for both (e.g. 32-true: fp32, as on a host without bf16)")
     parser.add_argument("--timeout", type=float, default=1800, help="seconds per pipeline run")
     args = parser.parse_args(argv)
-    if (os.cpu_count() or 1) < 2:
+    if host_cores() < 2:
         print("side by side needs two cores; this host has one")
         return {}
     budget = [f"relation.train.epochs={args.relation_epochs}", f"facing.train.epochs={args.facing_epochs}",

@@ -96,18 +96,18 @@ def _call(job: Job) -> Outcome:
 
 
 def _child(conn, job: Job) -> None:
-    start = time.perf_counter()
+    """A stage's process: its outcome, with the traceback it had here, sent back. An interrupt sends nothing: the
+    engine sees the process end without an answer and keeps the work dir, as for an interrupted stage."""
     try:
-        metrics = call_stage(job.spec, job.parts, job.inputs, job.out_dir, job.run)
-        conn.send(("ok", metrics, "", time.perf_counter() - start))
-    except BaseException as exc:  # sent back whatever it is: the engine decides (an interrupt keeps the work dir)
-        text = traceback.format_exc()
-        try:
-            copy.copy(exc)  # rebuilt from its arguments, as the engine's side of the pipe will
-            pickle.dumps(exc)
-        except Exception:  # an exception that does not travel: its type and message do
-            exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-        conn.send(("error", exc, text, time.perf_counter() - start))
+        outcome = _call(job)
+        if outcome.error is not None:
+            outcome.traceback = "".join(traceback.format_exception(outcome.error))
+            try:
+                copy.copy(outcome.error)  # rebuilt from its arguments, as the engine's side of the pipe will
+                pickle.dumps(outcome.error)
+            except Exception:  # an exception that does not travel: its type and message do
+                outcome.error = RuntimeError(f"{type(outcome.error).__name__}: {outcome.error}")
+        conn.send(outcome)
     finally:
         conn.close()
 
@@ -141,15 +141,12 @@ def run_side_by_side(jobs: dict[str, Job], answered=None, here: str | None = Non
             for receive in wait(list(pending)):
                 name = pending.pop(receive)
                 try:
-                    kind, payload, text, seconds = receive.recv()
-                except EOFError:  # the process died without a word (killed, out of memory)
+                    answer(name, receive.recv())
+                except EOFError:  # the process died without a word (killed, out of memory, interrupted)
                     procs[name].join()
                     error = StageProcessDied(f"stage '{name}': its process exited with code {procs[name].exitcode} "
                                              "before it answered; its work dir is kept for a re-run to resume from")
                     answer(name, Outcome(None, error, "", time.perf_counter() - start))
-                    continue
-                ok = kind == "ok"
-                answer(name, Outcome(payload if ok else None, None if ok else payload, text, seconds))
     except BaseException:  # the engine was interrupted (or failed): stop what still runs
         for proc in procs.values():
             if proc.is_alive():
