@@ -450,7 +450,7 @@ def _size(prior: FootprintPrior, scale: float = 1.0) -> tuple[float, float, floa
 # SIZE_REFINE_STEP either side (not under 1). A car 10 % longer than the median one, fitted at 1.0 or 1.3, stood ~0.5 m
 # too far; on three datasets' val splits the refinement took the no-wheel median centre error from 0.568 / 0.272 /
 # 0.226 to 0.386 / 0.225 / 0.209 m (labelled boxes). A grid in steps of 0.1 did as well in domain but fitted long
-# vehicles as cars (a bus at 1.6 came out at 1.1, 1.9 m off) and lost held out (docs/bev.md, "Finer sizes")
+# vehicles as cars (a bus at 1.6 came out at 1.1, 1.9 m off) and lost held out (docs/bev.md, "Sizes")
 SIZE_SCALES = (1.0, 1.3, 1.6, 1.9, 2.2)
 SIZE_REFINE_STEP = 0.1
 SIZE_PENALTY = 0.03
