@@ -6,6 +6,8 @@ logged parameters equal the row's composed configuration (``RowMatcher``), which
 (a sweep of ``make ablations`` or a single run); the newest such run is used. Writes
 ``table{1,2,3}.{md,csv}``, ``comparison.md`` and ``comparison.png`` (our numbers beside the paper's,
 ``deepword.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed),
+``default_run.md``, ``default_run.csv``, ``default_run_detector.csv`` (the headline's run in full: every relation
+method on both box sources, in domain and held out, and the detector; ``stages.tables.default_run``),
 ``bev.md``, ``bev.csv``, ``bev_populations.csv`` (the footprints scored the nuScenes way, per method and per wheel
 population, of the newest run with them; ``stages.tables.bev``), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
 scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
@@ -40,6 +42,7 @@ from pipeline.tables import (
 from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import bev_tables
+from stages.tables.default_run import default_run_tables
 from stages.tables.headline import headline_table, keep_adapt_row, write_headline
 from stages.tables.rows import TABLE1, TABLE2, TABLE3_ROW, Row, RowMatcher
 
@@ -267,12 +270,14 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     tbs, used_bev = bev_tables(runs)
     ta, used_adapt = adapt_table(runs, adapt_experiment)
     th, used_headline = headline_table(runs, adapt_experiment)
+    tdr, used_default = default_run_tables(runs)
     # a table this store has no runs for keeps what the page shows (another store's runs, e.g. a sweep run elsewhere)
     earlier = measured_tables(results) if results is not None else {}
     t1, t2, t3, td, ta = (keep_earlier(t, used, earlier) for t, used in
                           ((t1, used1), (t2, used2), (t3, used3), (td, used_datasets),
                            (ta, {k: v for k, v in used_adapt.items() if k != "adapt.base"})))   # the sweep's own runs
     tbs = [keep_earlier(t, used_bev, earlier) for t in tbs]
+    tdr = [keep_earlier(t, used_default, earlier) for t in tdr]
     if readme is not None and "headline.adapt" not in used_headline:
         th = keep_adapt_row(th, readme)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -284,7 +289,10 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     scope = f"profile {profile}" if profile else "all profiles"
     (out_dir / "comparison.md").write_text(
         f"# DeepWORD: our runs vs the paper\n\nExperiment `{experiment}` at `{uri}`, {scope}.\n\n"
-        + "\n".join(t.markdown() for t in [*tables, td, *tbs, ta]))
+        + "\n".join(t.markdown() for t in [*tdr, *tables, td, *tbs, ta]))
+    (out_dir / "default_run.md").write_text("\n".join(t.markdown() for t in tdr))
+    for name, table in zip(("default_run", "default_run_detector"), tdr, strict=True):
+        table.write_csv(out_dir / f"{name}.csv")
     (out_dir / "bev.md").write_text("\n".join(t.markdown() for t in tbs))
     for name, table in zip(("bev", "bev_populations"), tbs, strict=False):
         table.write_csv(out_dir / f"{name}.csv")
@@ -302,10 +310,10 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     else:
         (out_dir / "adapt.png").unlink(missing_ok=True)
     sources = ({f"table1.{k}": v for k, v in used1.items()} | {f"table2.{k}": v for k, v in used2.items()} | used3
-               | used_datasets | used_bev | used_adapt | used_headline)
+               | used_datasets | used_bev | used_adapt | used_headline | used_default)
     result = {"out_dir": str(out_dir), "sources": sources, "runs_considered": len(runs), "run_id": None}
     if results is not None:
-        write_results_page(results, [th, *tables, td, *tbs, ta], out_dir, scope)
+        write_results_page(results, [th, *tdr, *tables, td, *tbs, ta], out_dir, scope)
     if readme is not None:
         write_headline(readme, th)
     if log:

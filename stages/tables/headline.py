@@ -33,11 +33,17 @@ def _rows_of(run: RunRecord) -> list[tuple[str, str, str]]:
             ("ground-truth boxes, DeepWORD, held-out domain", "shift.gt", "deepword")]
 
 
+def headline_run(runs: list[RunRecord]) -> RunRecord | None:
+    """The newest default run with end-to-end rows (``runs``: newest first): the run the headline and the default
+    run's full tables (stages/tables/default_run.py) quote."""
+    return next((r for r in runs if metric_name("detected", end_to_end_method(r), "mixed", "pair_f1") in r.metrics
+                 and is_default_run(r, r.tags.get("profile", "quick"))), None)
+
+
 def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table, dict]:
     """pair_f1 on easy / hard / mixed and hard image_acc of the newest default run (``runs``: newest first) with
     end-to-end rows."""
-    run = next((r for r in runs if metric_name("detected", end_to_end_method(r), "mixed", "pair_f1") in r.metrics
-                and is_default_run(r, r.tags.get("profile", "quick"))), None)
+    run = headline_run(runs)
     header = ["synthetic test images", *(f"pair_f1 {s}" for s in SUBSETS), "image_acc hard"]
     rows, notes = [], []
     if run is None:
