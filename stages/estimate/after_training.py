@@ -242,9 +242,11 @@ def export(cfg: DictConfig, context=None) -> dict | None:
         parts["latency"] += calls * (11 * u["detector"] + u["detector_eager"])
         parts["operating point"] = val * (u["decode"] + u["detector"] + OP_EMBED_CALLS_PER_VAL_IMAGE
                                           * u["relation_eager"] + OP_SEARCH_PER_VAL_IMAGE_S)
+    networks = (f"detector {1000 * u['detector']:.1f} ms, " if "detector" in u else "") + \
+        f"relation {1000 * u['relation']:.2f} ms in onnxruntime"   # a run without the detector times no detector
     return {"seconds": sum(parts.values()),
             "note": ", ".join(f"{k} {v:.0f} s" for k, v in parts.items() if v) + f" ({test} test, {val} val images; "
-                    f"detector {1000 * u['detector']:.1f} ms, relation {1000 * u['relation']:.2f} ms in onnxruntime)",
+                    f"{networks})",
             "hint": f"fewer latency runs (export.latency.runs, now {int(ex.latency.runs)}) or parity images "
                     "(export.parity.images)"}
 

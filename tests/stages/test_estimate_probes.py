@@ -159,6 +159,12 @@ def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
     without = after_training.export(_cfg("pipeline.skip=[detector]"))
     assert "operating point" in with_detector["note"] and "operating point" not in without["note"]
     assert without["seconds"] < with_detector["seconds"]
+    # where the detector is skipped its calls are not timed at all (the ten-dataset sweep): an estimate all the same
+    monkeypatch.setattr(after_training, "unit_calls",
+                        lambda cfg: {k: v for k, v in units.items() if not k.startswith("detector")})
+    relation_only = after_training.export(_cfg("pipeline.skip=[detector]"))
+    assert relation_only["seconds"] == pytest.approx(without["seconds"] - 2 * 0.5)   # no detector export either
+    assert "detector" not in relation_only["note"] and "relation 1.00 ms" in relation_only["note"]
 
     # bev: the fits shared among processes, at most one per MIN_FRAMES_PER_PROCESS frames
     monkeypatch.setattr(after_training, "_no_wheel_fit_seconds", lambda cfg: 0.5)
