@@ -361,13 +361,20 @@ class Camera:
 def ego_body_outline(mask: np.ndarray, tolerance_px: float = 1.0) -> list[list[list[float]]]:
     """A calibration's ``ego_body`` from a mask of the ego's own body in one camera's image ((H, W), nonzero where
     the body is): the outline of each region, simplified to within ``tolerance_px`` (``cv2.approxPolyDP``), in box
-    coordinates. ``Camera.ego_mask`` draws it back; regions under 4 square pixels are left out."""
+    coordinates. ``Camera.ego_mask`` draws it back; regions under 4 square pixels are left out. A sliver two pixels
+    wide simplifies to a line of two points, which is no polygon (``format_3d.check_ego_body`` refuses it): it keeps
+    its unsimplified outline."""
     import cv2
 
     contours, _ = cv2.findContours((np.asarray(mask) != 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    return [[[float(x) - BOX_TO_IMAGE, float(y) - BOX_TO_IMAGE]
-             for x, y in cv2.approxPolyDP(c, tolerance_px, True).reshape(-1, 2)]
-            for c in contours if cv2.contourArea(c) >= 4]
+    outlines = []
+    for c in contours:
+        if cv2.contourArea(c) < 4:
+            continue
+        simplified = cv2.approxPolyDP(c, tolerance_px, True).reshape(-1, 2)
+        points = simplified if len(simplified) >= 3 else c.reshape(-1, 2)
+        outlines.append([[float(x) - BOX_TO_IMAGE, float(y) - BOX_TO_IMAGE] for x, y in points])
+    return outlines
 
 
 def camera_from_calibration(calibration: dict, name: str = "") -> Camera:

@@ -15,6 +15,7 @@ from deepword.cameras import (
     mount_rotation,
     quaternion_to_matrix,
 )
+from deepword.format_3d import check_ego_body
 from stages.data.camera import sample_intrinsic
 
 LENS_CFG = {"fov_deg": [170, 200], "edge_radius": [0.9, 1.06], "principal_offset": 0.012, "pixel_aspect": [0.98, 1.02]}
@@ -176,3 +177,20 @@ def test_an_ego_body_outline_draws_back_the_mask_it_came_from():
     assert drawn.shape == mask.shape
     assert (drawn != mask.astype(bool)).sum() <= 0.03 * mask.sum()
     assert cam.calibration()["ego_body"] == body
+
+
+def test_an_ego_body_sliver_keeps_an_outline_the_reader_accepts():
+    """A strip of the body two pixels wide (area 5) simplifies to a line of two points: its outline is kept
+    unsimplified, so the generator never writes an ``ego_body`` its own reader refuses (a held-out frame did)."""
+    mask = np.zeros((20, 20), np.uint8)
+    mask[5:11, 5:7] = 1
+    body = ego_body_outline(mask)
+    assert len(body) == 1 and len(body[0]) >= 3
+
+    def fail(field, message):
+        raise AssertionError(f"{field}: {message}")
+
+    check_ego_body(body, 20, 20, fail)
+    cam = replace(CAMERAS[0], width=20, height=20, ego_body=tuple(tuple(map(tuple, p)) for p in body))
+    assert cam.ego_mask[5:11, 5:7].any()
+
