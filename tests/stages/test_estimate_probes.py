@@ -135,7 +135,8 @@ def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
     units = {"threads": 2, "relation": 0.001, "relation_eager": 0.004, "relation_export": 1.0, "detector": 0.01,
              "detector_eager": 0.02, "detector_export": 0.5, "decode": 0.003}
     monkeypatch.setattr(after_training, "unit_calls", lambda cfg: units)
-    cfg = _cfg("eval.fit_images=10")
+    flip = "relation.decode.flip_average=true"  # each image and its mirror: two relation calls a row
+    cfg = _cfg("eval.fit_images=10", flip)
     test, train = estimate.split_images(cfg, "test"), estimate.split_images(cfg, "train")
     held_out = int(cfg.shift.data.frames) * 4
     # every test image of both domains: the detector, the relation model for 2 box sources x 2 rows (deepword and
@@ -143,10 +144,12 @@ def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
     per_image = 0.01 + 2 * 2 * (2 * 0.001 + after_training.GRAPH_S) + 3 * 0.003 + after_training.EVAL_OTHER_PER_IMAGE_S
     fit = min(10, train) * after_training.EVAL_FIT_PER_TRAIN_IMAGE_S
     assert after_training.evaluate(cfg)["seconds"] == pytest.approx(fit + (test + held_out) * per_image)
-    in_domain = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[shift_data]"))["seconds"]
+    once = after_training.evaluate(_cfg("eval.fit_images=10", "relation.decode.flip_average=false"))["seconds"]
+    assert once == pytest.approx(fit + (test + held_out) * (per_image - 2 * 2 * 0.001))  # each image scored once
+    in_domain = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[shift_data]", flip))["seconds"]
     assert in_domain == pytest.approx(fit + test * per_image)
     # without a detector: no detected boxes, so neither the detector's calls nor that source's relation calls
-    no_detector = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[detector]"))["seconds"]
+    no_detector = after_training.evaluate(_cfg("eval.fit_images=10", "pipeline.skip=[detector]", flip))["seconds"]
     per_image_gt = 2 * (2 * 0.001 + after_training.GRAPH_S) + 3 * 0.003 + after_training.EVAL_OTHER_PER_IMAGE_S
     assert no_detector == pytest.approx(fit + (test + held_out) * per_image_gt)
 
