@@ -5,6 +5,7 @@ image never do."""
 import math
 
 import numpy as np
+import pytest
 
 from deepword.footprint import (
     Estimate,
@@ -92,3 +93,33 @@ def test_between_two_weak_footprints_the_one_that_explains_both_views_stays():
     assert explained_cost(right_place.box, wrong_place, PRIOR) < explained_cost(wrong_place.box, right_place, PRIOR)
     (fused, group), = fuse_frame([right_place, wrong_place], 1.5, PRIOR)
     assert fused == CAR and {e.camera for e in group} == {"left", "front"}
+
+
+def test_a_one_wheel_footprint_is_as_confident_as_its_box_tells_the_wheels_end(monkeypatch):
+    import deepword.footprint as footprint
+    from deepword.word_format import Record
+
+    left = _camera()
+    car = Box3D(1.5, 5.0, 4.5, 1.8, 0.05, 1.5)
+    contact = _contacts(car)["rr"]
+    whole = np.array(_seen(left, car))
+
+    def one_wheel():
+        rec = Record(image="images/left/000000.png", frame_id=0, camera="left", width=left.width, height=left.height,
+                     boxes=np.array([[*whole, 1.0, 0, 0], [0.0, 0.0, 10.0, 10.0, 1.0, 1, 1]]), relations=[(0, 1, None)],
+                     wheel_pairs=[])
+        (e,) = footprints_from_contacts(rec, left, PRIOR, {1: contact})
+        assert e.evidence == "wheel"
+        return e
+
+    # the whole side in view: the other end draws the box far worse, and the footprint keeps a wheel's 0.5
+    seen = one_wheel()
+    assert math.hypot(seen.box.x - car.x, seen.box.y - car.y) < 0.5
+    assert footprint.end_margin(left, contact, seen.box, 0.0, whole, PRIOR) > 3 * footprint.END_MARGIN_SCALE
+    assert seen.confidence == pytest.approx(0.5, abs=0.01)
+    assert footprint.end_margin(left, contact, seen.box, 1e6, whole, PRIOR) == 0.0   # never negative
+    # a box either end draws alike (a margin of 0) leaves the footprint no confidence; half the scale, 1 - e^-0.5
+    monkeypatch.setattr(footprint, "end_margin", lambda *args: 0.0)
+    assert one_wheel().confidence == 0.0
+    monkeypatch.setattr(footprint, "end_margin", lambda *args: footprint.END_MARGIN_SCALE / 2)
+    assert one_wheel().confidence == pytest.approx(0.5 * (1 - math.exp(-0.5)))
