@@ -1072,15 +1072,16 @@ def fuse_frame(estimates: list[Estimate], radius_m: float,
     return suppress_overlaps(fused)
 
 
-# A weak footprint (one wheel or none) is a second footprint of another vehicle's where that vehicle's footprint,
+# A weak footprint (one wheel or none) is a second footprint of a vehicle another footprint places where that one,
 # projected into each camera that saw the weak one, draws the box that camera saw (within EXPLAINED_COST of
 # ``silhouette_cost``) and holds the ground contacts of the wheels it rests on (within CONTACT_MARGIN_M), their
 # centres within ABSORB_RADIUS_M. A weak view's place along its camera's ray is its least sure part (an end-on
 # vehicle's length, a one-wheel fit's choice of end, a box the image circle cuts), so fusing by ground distance
 # (``fuse_radius_m``) left two footprints of one vehicle 1.5-4 m apart, the weak one a confident false positive; what
 # a camera is sure of is the box it saw and where a wheel touches the ground. Chosen on the val and train splits of
-# three datasets (labelled boxes and relations; docs/bev.md, "One vehicle, two footprints"): AP and recall at 95 %
-# precision up on all six, the cost bound from the pairs' costs (same vehicle: median 0.09, other vehicles: 1.3).
+# three datasets (labelled boxes and relations; docs/bev.md, "One vehicle, two footprints"): AP and precision up on
+# all six, the recall at 95 % precision up or level; the cost bound from the pairs' costs (same vehicle: median 0.09,
+# other vehicles: 1.3).
 EXPLAINED_COST = 0.03
 ABSORB_RADIUS_M = 5.0
 CONTACT_MARGIN_M = 0.5
@@ -1089,7 +1090,8 @@ WEAK_EVIDENCE = ("wheel", "box")
 
 def explained_cost(box: Box3D, e: Estimate, prior: FootprintPrior) -> float:
     """How far ``box`` (a footprint), projected into the camera of ``e``, misses the vehicle box that camera saw
-    (``silhouette_cost``, the edges the ego's body hides free); inf where ``e`` does not carry its view."""
+    (``silhouette_cost``, the edges the ego's body hides free); inf where ``e`` does not carry its view or where a
+    wheel it rests on stands outside ``box`` (by more than ``CONTACT_MARGIN_M``)."""
     if e.cam is None or e.vbox is None:
         return math.inf
     if any(not _holds(box, c, CONTACT_MARGIN_M) for c in e.contacts):
