@@ -36,6 +36,9 @@ TEST_OBJECT_COUNTS = (19, 21, 28, 12, 7, 30, 8, 22, 7, 20, 8, 7, 27, 9, 2, 6, 22
                       3, 14, 4, 11, 4, 7, 18, 6, 12, 7, 8, 24, 3, 9, 30, 23, 10, 12, 17, 15, 15, 5, 22, 4, 7)
 
 
+INT8_OPS = ["MatMul", "Gemm"]   # the operators quantised to INT8, as conf/export/default.yaml's int8.op_types
+
+
 def default_configs() -> tuple[dict, dict]:
     """The relation and detector sections of the default config, composed from conf/ like the pipeline."""
     from hydra import compose, initialize_config_dir
@@ -82,8 +85,8 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
     from deepword.inference.runtime import DETECTOR_FILE, RELATION_FILES
     from deepword.relation_graph import InputConfig
     from stages.detector.model import build_centernet, model_config
-    from stages.export.onnx_export import export_detector, export_relation
-    from stages.export.stage import detector_latency, quantize_int8, relation_latency, size_mb
+    from stages.export.onnx_export import export_detector
+    from stages.export.stage import detector_latency, export_relation_models, relation_latency, size_mb
     from stages.relation.model import count_parameters
 
     rel, det = default_configs()
@@ -98,9 +101,7 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
     lat = OmegaConf.create({"threads": threads, "runs": runs, "warmup": warmup})
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        export_relation(net, out / RELATION_FILES["static"], size, n, static=True)
-        export_relation(net, out / RELATION_FILES["dynamic"], size, n, static=False)
-        quantize_int8(out / RELATION_FILES["dynamic"], out / RELATION_FILES["int8"], ["MatMul", "Gemm"])
+        export_relation_models(net, out, size, n, INT8_OPS)
         export_detector(det_net, out / DETECTOR_FILE, det_cfg["input_width"], det_cfg["input_height"],
                         det_cfg["max_detections"])
         m = {"export.relation.networks": float(len(getattr(net, "members", [net]))),
@@ -118,9 +119,7 @@ def measure(threads: int, runs: int, warmup: int) -> dict[str, float]:
             one = out / "one_network"
             one.mkdir()
             alone = RelationNet(ModelConfig.from_cfg(OmegaConf.create(rel))).eval()
-            export_relation(alone, one / RELATION_FILES["static"], size, n, static=True)
-            export_relation(alone, one / RELATION_FILES["dynamic"], size, n, static=False)
-            quantize_int8(one / RELATION_FILES["dynamic"], one / RELATION_FILES["int8"], ["MatMul", "Gemm"])
+            export_relation_models(alone, one, size, n, INT8_OPS)
             timed = relation_latency(alone, one, graphs, size, n, lat)
             m["one_network_ms_per_img_b1"] = timed["export.relation.ms_per_img_b1"]
             m["one_network_cpu_ms_per_img_b1"] = timed["export.relation.cpu_ms_per_img_b1"]

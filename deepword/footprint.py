@@ -547,6 +547,15 @@ def fit_free(cam: Camera, vbox: np.ndarray, prior: FootprintPrior, start: Box3D,
     return Box3D(bx, by, size[0], size[1], math.remainder(float(yaw[i]), 2 * math.pi)), cost
 
 
+def _one_wheel_centres(contact: np.ndarray, yaw: np.ndarray, along: np.ndarray, side: np.ndarray, half_wb: float,
+                       lateral: float) -> np.ndarray:
+    """(N, 2) centres of vehicles heading ``yaw`` whose wheel touches the ground at ``contact``: ``along`` (+-1) half a
+    wheelbase ahead of it (+1) or behind it, ``side`` (+-1) ``lateral`` to its left (+1) or right."""
+    u = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+    n = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    return contact + along[:, None] * u * half_wb + side[:, None] * n * lateral
+
+
 def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarray,
               prior: FootprintPrior, axes: list[float] | None = None, scale: float = 1.0) -> tuple[Box3D, float]:
     """A one-wheel footprint: the wheel sits (wheelbase/2) ahead of the centre when ``front``, behind it when
@@ -559,9 +568,7 @@ def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarr
     yaws = np.array([a + t for a in axes for t in (0.0, math.pi)]) if axes else np.arange(72) * math.pi / 36
     for it in range(1 if axes else 3):
         cand = np.array([(y, a, b) for y in yaws for a in along for b in (-1.0, 1.0)])
-        u = np.stack([np.cos(cand[:, 0]), np.sin(cand[:, 0])], axis=1)
-        n = np.stack([-u[:, 1], u[:, 0]], axis=1)
-        xy = contact + cand[:, 1:2] * u * half_wb + cand[:, 2:3] * n * lateral
+        xy = _one_wheel_centres(contact, cand[:, 0], cand[:, 1], cand[:, 2], half_wb, lateral)
         # every edge counts here, hidden or not: the contact pins the position, and freeing a hidden edge let the
         # side and heading search pick worse (AP of one-wheel vehicles down on two of three datasets' val splits)
         costs = silhouette_cost(silhouette_boxes(cam, xy, cand[:, 0], size, prior.shape), vbox)
@@ -594,10 +601,8 @@ def end_margin(cam: Camera, contact: np.ndarray, box: Box3D, cost: float, vbox: 
     chosen = math.copysign(1.0, float(np.dot(np.array([box.x, box.y]) - contact, u0)))
     yaws = np.concatenate([box.yaw + np.radians(np.linspace(-10, 10, 9)) + t for t in (0.0, math.pi)])
     cand = np.array([(y, b) for y in yaws for b in (-1.0, 1.0)])
-    u = np.stack([np.cos(cand[:, 0]), np.sin(cand[:, 0])], axis=1)
-    n = np.stack([-u[:, 1], u[:, 0]], axis=1)
-    a = -chosen * np.sign(u @ u0)
-    xy = contact + a[:, None] * u * half_wb + cand[:, 1:2] * n * lateral
+    along = -chosen * np.sign(np.cos(cand[:, 0]) * u0[0] + np.sin(cand[:, 0]) * u0[1])   # the other side of the wheel
+    xy = _one_wheel_centres(contact, cand[:, 0], along, cand[:, 1], half_wb, lateral)
     costs = silhouette_cost(silhouette_boxes(cam, xy, cand[:, 0], size, prior.shape), vbox)
     return max(float(costs.min()) - cost, 0.0)
 

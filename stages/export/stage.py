@@ -77,6 +77,16 @@ def size_mb(path: Path) -> float:
     return path.stat().st_size / 2**20
 
 
+def export_relation_models(net, out_dir: Path, input_size: int, max_objects: int, int8_op_types: list[str]) -> None:
+    """The relation model's three ONNX files in ``out_dir`` (``RELATION_FILES``): static shapes, dynamic shapes and
+    the dynamic one quantised to INT8 (``quantize_int8``)."""
+    from stages.export.onnx_export import export_relation
+
+    export_relation(net, out_dir / RELATION_FILES["static"], input_size, max_objects, static=True)
+    export_relation(net, out_dir / RELATION_FILES["dynamic"], input_size, max_objects, static=False)
+    quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], int8_op_types)
+
+
 def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
     """Dynamic INT8 quantisation (weights int8 offline, activations per call). Only MatMul/Gemm by
     default: onnxruntime's ConvInteger kernels are several times slower than its float convolutions,
@@ -379,7 +389,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
 
     # imported here: it loads torch, which importing this module must not
     from stages.detector.model import load_detector
-    from stages.export.onnx_export import export_relation, folds_first_conv
+    from stages.export.onnx_export import folds_first_conv
     from stages.facing.stage import load_network as load_facing
     from stages.relation.model import count_parameters
     from stages.relation.stage import load_network
@@ -394,9 +404,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     shutil.copy(Path(inputs["priors"]) / PRIORS_FILE, out_dir / PRIORS_FILE)
     priors = load_priors(out_dir / PRIORS_FILE)
 
-    export_relation(net, out_dir / RELATION_FILES["static"], in_cfg.input_size, in_cfg.max_objects, static=True)
-    export_relation(net, out_dir / RELATION_FILES["dynamic"], in_cfg.input_size, in_cfg.max_objects, static=False)
-    quantize_int8(out_dir / RELATION_FILES["dynamic"], out_dir / RELATION_FILES["int8"], list(ex.int8.op_types))
+    export_relation_models(net, out_dir, in_cfg.input_size, in_cfg.max_objects, list(ex.int8.op_types))
     test = _limit(ds.subset("test"), ex.parity.images)
     if not test:
         raise ValueError("export: the test split is empty; parity and latency need test images")
