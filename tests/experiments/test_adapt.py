@@ -22,6 +22,7 @@ from tests.sqlite_store import fresh_store
 SAMPLES = {"n25_draw0": (25, 0), "n25_draw1": (25, 1), "n50_draw0": (50, 0), "n50_draw1": (50, 1),
            "n100_draw0": (100, 0), "n200_draw0": (200, 0), "n400_draw0": (400, 0)}
 BY_NAME = {"n100_draw1": (100, 1), "n200_draw1": (200, 1)}   # second draws outside the sweep, run by name
+OWN_DOMAIN = {"n1050_draw0": (1050, 0)}   # scratch with the default run's budget, outside the sweep, run by name
 
 
 
@@ -38,7 +39,7 @@ def test_the_sweep_runs_four_recipes_on_seven_samples_two_jobs_at_a_time():
     assert params["adapt_recipe"].split(",") == ["finetune", "finetune_mixed", "scratch", "mixed"]
     assert sorted(p.stem for p in (CONF / "adapt_recipe").glob("*.yaml")) == sorted(params["adapt_recipe"].split(","))
     assert params["adapt_sample"].split(",") == list(SAMPLES)            # two draws where N <= 50
-    assert sorted(p.stem for p in (CONF / "adapt_sample").glob("*.yaml")) == sorted({**SAMPLES, **BY_NAME})
+    assert sorted(p.stem for p in (CONF / "adapt_sample").glob("*.yaml")) == sorted({**SAMPLES, **BY_NAME, **OWN_DOMAIN})
     assert hydra.callbacks.sweep_summary._target_ == "pipeline.sweep.SweepSummary"
 
 
@@ -120,6 +121,18 @@ def test_finetune_mixed_jobs_start_from_the_base_run_and_replay_the_generators_t
     train = 840 / 0.75
     assert 550 <= budget["detector_epochs"] * (train // 8) <= 750
     assert 300 <= budget["relation_epochs"] * math.ceil(2 * train / 16) <= 450
+
+
+def test_the_held_out_domains_own_default_run_is_scratch_on_as_many_images_with_the_default_runs_budget():
+    (sample, (n, draw)), = OWN_DOMAIN.items()
+    job, default = _job("scratch", sample), compose_config([])
+    pool = job["data"]["sources"]["pool"]
+    assert (pool["images"], pool["draw"], job["adapt"]["size"]) == (n, draw, f"n{n}")
+    sizing = default["detector"]["sizing"]
+    assert job["detector"]["epochs"] == sizing["max_epochs"]
+    assert job["detector"]["val_every_n_epochs"] == default["detector"]["val_every_n_epochs"]
+    assert (job["relation"]["train"]["epochs"], job["relation"]["train"]["patience"]) == \
+        (default["relation"]["train"]["epochs"], default["relation"]["train"]["patience"])
 
 
 def test_finetune_without_a_base_run_does_not_compose():
