@@ -589,6 +589,11 @@ def fit_wheel(cam: Camera, contact: np.ndarray, role: str | None, vbox: np.ndarr
 END_MARGIN_SCALE = 0.03
 
 
+def centre_ahead_of(box: Box3D, xy) -> float:
+    """How far (m) ``box``'s centre lies ahead of the ground point ``xy`` along its heading (< 0: behind it)."""
+    return float(np.dot(np.array([box.x, box.y]) - xy, (math.cos(box.yaw), math.sin(box.yaw))))
+
+
 def end_margin(cam: Camera, contact: np.ndarray, box: Box3D, cost: float, vbox: np.ndarray,
                prior: FootprintPrior) -> float:
     """How much worse (silhouette cost) the vehicle box ``vbox`` is drawn by the one-wheel footprint ``box`` (its
@@ -597,11 +602,10 @@ def end_margin(cam: Camera, contact: np.ndarray, box: Box3D, cost: float, vbox: 
     scale = box.length / prior.length
     size = _size(prior, scale)
     half_wb, lateral = prior.wheelbase * scale / 2, size[1] / 2 - prior.track_inset
-    u0 = np.array([math.cos(box.yaw), math.sin(box.yaw)])
-    chosen = math.copysign(1.0, float(np.dot(np.array([box.x, box.y]) - contact, u0)))
+    chosen = math.copysign(1.0, centre_ahead_of(box, contact))
     yaws = np.concatenate([box.yaw + np.radians(np.linspace(-10, 10, 9)) + t for t in (0.0, math.pi)])
     cand = np.array([(y, b) for y in yaws for b in (-1.0, 1.0)])
-    along = -chosen * np.sign(np.cos(cand[:, 0]) * u0[0] + np.sin(cand[:, 0]) * u0[1])   # the other side of the wheel
+    along = -chosen * np.sign(np.cos(cand[:, 0] - box.yaw))   # the other side of the wheel, in each candidate's heading
     xy = _one_wheel_centres(contact, cand[:, 0], along, cand[:, 1], half_wb, lateral)
     costs = silhouette_cost(silhouette_boxes(cam, xy, cand[:, 0], size, prior.shape), vbox)
     return max(float(costs.min()) - cost, 0.0)
@@ -753,8 +757,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
             # how sure the fit is of the wheel's end (END_MARGIN_SCALE): a wrong end puts the centre a wheelbase off
             end_trust = 1.0 - math.exp(-end_margin(cam, c, box, cost, vbox, prior) / END_MARGIN_SCALE)
             if role is not None:
-                along = np.dot(np.array([box.x, box.y]) - c, (math.cos(box.yaw), math.sin(box.yaw)))
-                points_front = (along < 0) == (role == "front")   # the centre lies behind a front wheel
+                points_front = (centre_ahead_of(box, c) < 0) == (role == "front")   # the centre lies behind a front wheel
                 vote = ROLE_WHEEL_LOGIT if points_front else -ROLE_WHEEL_LOGIT
         if evidence in ("sides", "side") and not side_fits_box(cam, box, vbox, prior):
             # one wheel of each of two vehicles: the vehicle is fitted from its box alone, and gives no context
@@ -1159,7 +1162,7 @@ def absorb_explained(fused: list[tuple[Box3D, list[Estimate]]],
         _, i, j = best
         groups[i][1].extend(groups[j][1])
         alive.discard(j)
-        cost = {k: v for k, v in cost.items() if i not in k}   # its group grew: its views are more
+        cost = {k: v for k, v in cost.items() if k[1] != i}   # i's views grew: what explains them is asked again
     return [groups[i] for i in sorted(alive)]
 
 
