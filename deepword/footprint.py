@@ -64,6 +64,7 @@ from shapely.geometry import Polygon
 from deepword.cameras import BOX_TO_IMAGE, Camera
 from deepword.facing import image_facing, record_facing, record_facing_accuracy
 from deepword.format_3d import Box3D
+from deepword.wheel_roles import network_roles
 from deepword.word_format import VEHICLE, WHEEL, Record
 
 # evidence levels, strongest first
@@ -708,7 +709,7 @@ def footprints_from_contacts(rec: Record, cam: Camera, prior: FootprintPrior, co
     facings = record_facing(rec) if use_relations else {}
     facing_acc, facing_scale = record_facing_accuracy(rec, FACING_VAL_ACC), rec.extra.get(FACING_SCALE_KEY)
     owner = rec.owner_of() if use_relations else {}
-    roles = {w: r for _, w, r in rec.relations if r} if use_relations else {}
+    roles = network_roles(rec) if use_relations else {}   # not the roles read from a heading: one vote is enough
     # a role head lists couples rear first: their order is a (weak) vote when the relations carry roles
     couple_order = set(rec.wheel_pairs) if roles else set()
     couples = [(a, b) for a, b in rec.wheel_pairs if a in contacts and b in contacts] if use_relations else []

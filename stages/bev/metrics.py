@@ -294,3 +294,46 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
             total += 1
             right += float(np.dot(f, t)) > 0
     return None if total == 0 else {"acc": 100.0 * right / total, "vehicles": float(total)}
+
+
+def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, match_iou: float = 0.5) -> dict | None:
+    """How often each way of naming a wheel's role (front / rear) is right, over the predicted relations that name a
+    true relation with a known role (both boxes matched at IoU >= ``match_iou``: ``deepword.metrics.match_boxes``):
+    the relation method's own roles (``network_acc``, a relation without one counts as wrong), the facing vector's
+    (``facing_acc``: ``deepword.wheel_roles.facing_roles``, what ``deepword infer`` writes without a calibration) and
+    the roles ``deepword infer`` writes with one (``acc``: from the fused footprint, else the facing vector, else the
+    method's), with how many relations (``relations``) and the share the footprint decided (``footprint_share``).
+    ``fused``: {frame: [(footprint, estimates)]} of the predictions' footprints. None where no relation qualifies."""
+    from deepword.footprint import wheel_contacts
+    from deepword.metrics import match_boxes
+    from deepword.wheel_roles import FACING, FOOTPRINT, facing_roles, footprint_roles, with_roles
+    from deepword.word_format import WHEEL
+
+    right = {"network": 0, "facing": 0, "shipped": 0}
+    total = decided = 0
+    for rec in test:
+        pred = preds.get(rec.image)
+        if pred is None or not pred.relations:
+            continue
+        truth = {(v, w): r for v, w, r in rec.relations if r}
+        to_true = match_boxes(rec, pred, match_iou)
+        wheels = pred.boxes[pred.class_ids == WHEEL]
+        xy, ok = wheel_contacts(cameras[rec.image], wheels[:, :4], prior) if len(wheels) else ([], [])
+        contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+        by_footprint = footprint_roles(pred, fused.get(rec.frame_id, []), contacts)
+        by_facing = facing_roles(pred)
+        shipped = {(v, w): r for v, w, r in with_roles(pred, [(FOOTPRINT, by_footprint), (FACING, by_facing)]).relations}
+        for v, w, role in pred.relations:
+            true_role = truth.get((to_true.get(v), to_true.get(w)))
+            if true_role is None:
+                continue
+            total += 1
+            decided += (v, w) in by_footprint
+            right["network"] += role == true_role
+            right["facing"] += by_facing.get((v, w)) == true_role
+            right["shipped"] += shipped[(v, w)] == true_role
+    if total == 0:
+        return None
+    return {"acc": 100.0 * right["shipped"] / total, "network_acc": 100.0 * right["network"] / total,
+            "facing_acc": 100.0 * right["facing"] / total, "footprint_share": 100.0 * decided / total,
+            "relations": float(total)}

@@ -65,6 +65,7 @@ from stages.bev.metrics import (
     detection_scores,
     facing_agreement,
     match_frame,
+    role_agreement,
     summarise,
 )
 
@@ -174,7 +175,7 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     (out_dir / PRIOR_FILE).write_text(json.dumps(prior.to_json(), indent=1))
     e2e = end_to_end_method(inputs.output("evaluate", "report"))
     facing_net = OnnxFacing.from_bundle(inputs["export"]) if "export" in inputs else None
-    domain = score_domain(ds, "", inputs, prior, bcfg, out_dir, facing_net)
+    domain = score_domain(ds, "", inputs, prior, bcfg, out_dir, facing_net, e2e)
     report = {**domain.report, "prior": prior.to_json(), "max_range_m": float(bcfg.max_range_m),
               "match_m": float(bcfg.match_m), "fuse_radius_m": float(bcfg.fuse_radius_m)}
     metrics = domain.metrics("bev")
@@ -182,7 +183,7 @@ def run(cfg, inputs: StageInputs, out_dir: Path) -> dict[str, float]:
     if "shift_data" in inputs:   # the held-out domain: evaluate's predictions there, the same prior (fitted in domain)
         heldout = open_dataset(inputs["shift_data"])
         if check_3d(heldout.records):
-            shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir, facing_net)
+            shift = score_domain(heldout, HELDOUT_PREFIX, inputs, prior, bcfg, out_dir, facing_net, e2e)
             report["shift"] = shift.report
             metrics |= shift.metrics("bev.shift")
             figures += write_figures(artifacts, shift.test, shift.truth, shift.cameras, shift.fused_by, prior, bcfg,
@@ -213,22 +214,25 @@ class Domain:
     fused_by: dict
     notes: list
     facing: dict      # {boxes: facing_agreement} for the box sources whose detections carry the facing head's vectors
+    roles: dict       # {boxes: role_agreement} of the method deepword infer runs on those boxes
 
     @property
     def report(self) -> dict:
         return {"results": self.results, "detection": self.detection, "notes": self.notes, "frames": len(self.truth),
-                "facing": self.facing}
+                "facing": self.facing, "roles": self.roles}
 
     def metrics(self, root: str) -> dict[str, float]:
-        """``flatten``'s keys and ``<root>.<boxes>.facing.<key>`` (``facing_agreement``'s and the cameras' agreement)."""
+        """``flatten``'s keys, ``<root>.<boxes>.facing.<key>`` (``facing_agreement``'s and the cameras' agreement) and
+        ``<root>.<boxes>.roles.<key>`` (``role_agreement``'s)."""
         out = flatten(self.results, self.detection, root)
-        for boxes, score in self.facing.items():
-            out |= {f"{root}.{boxes}.facing.{k}": float(v) for k, v in score.items()}
+        for part, scores in (("facing", self.facing), ("roles", self.roles)):
+            for boxes, score in scores.items():
+                out |= {f"{root}.{boxes}.{part}.{k}": float(v) for k, v in score.items() if not isinstance(v, str)}
         return out
 
 
 def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: FootprintPrior, bcfg, out_dir: Path,
-                 facing_net=None) -> Domain:
+                 facing_net=None, end_to_end: str = "deepword") -> Domain:
     """Footprints of every method evaluate predicted on ``ds``'s test split (``prefix`` "" in domain, ``shift/`` the
     held-out domain: evaluate's ``<prefix>predictions/`` in, the stage's ``<prefix>footprints/`` out), scored; with
     ``facing_net`` (the bundle's ``OnnxFacing``) every vehicle box carries its facing vector."""
@@ -236,7 +240,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     cameras = {r.image: record_camera(r, NEEDED_BY) for r in test}
     truth = frame_truth(test, set(ds.splits.get("hard", [])))
     pops = populations(bcfg)
-    results, detection, notes, facing = {}, {}, [], {}
+    results, detection, notes, facing, roles = {}, {}, [], {}, {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
     reads = {}   # {boxes: {method: {image: record}}}
     for boxes in bcfg.box_sources:
@@ -274,6 +278,11 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                              **({} if implied is None else {"camera_agreement": 100.0 * agreeing / pairs,
                                                             "implied_acc": 100.0 * implied}),
                              **({"trust": trust[boxes]} if boxes in trust else {})}
+        # the roles deepword infer writes, for the method it runs on these boxes by default
+        infer_method = end_to_end if boxes == "detected" and end_to_end in read else facing_lead(boxes, methods)[1]
+        agreement = role_agreement(test, read[infer_method], fused_by[(boxes, infer_method)], cameras, prior)
+        if agreement is not None:
+            roles[boxes] = {**agreement, "method": infer_method}
         for method in [BASELINE, *methods]:
             fused = fused_by[(boxes, method)]
             matches = {f: match_frame(truth.get(f, []), [b for b, _ in fused[f]], float(bcfg.match_m)) for f in fused}
@@ -283,7 +292,7 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             detection.setdefault(boxes, {})[method] = {
                 name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
             write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
-    return Domain(test, truth, cameras, results, detection, fused_by, notes, facing)
+    return Domain(test, truth, cameras, results, detection, fused_by, notes, facing, roles)
 
 
 def with_facing_vectors(reads: dict, facing_net, root) -> dict:
@@ -383,10 +392,19 @@ def render_facing(facing: dict, domain: str = "") -> list[str]:
             for boxes, v in facing.items()]
 
 
+def render_roles(roles: dict, domain: str = "") -> list[str]:
+    return [f"- {domain}{boxes} boxes, `{v['method']}`: the wheels' front / rear roles are right for {v['acc']:.1f} % "
+            f"of {int(v['relations'])} true relations as `deepword infer` writes them (from the footprint for "
+            f"{v['footprint_share']:.0f} %), {v['facing_acc']:.1f} % from the facing vector alone (no calibration), "
+            f"{v['network_acc']:.1f} % as the relation method named them"
+            for boxes, v in roles.items()]
+
+
 def render_report(report: dict, bcfg) -> str:
     lines = ["# Bird's-eye view: vehicle footprints from wheel contacts", ""]
-    facing = render_facing(report.get("facing", {})) + render_facing((report.get("shift") or {}).get("facing", {}),
-                                                                      "held-out ")
+    shift = report.get("shift") or {}
+    facing = render_facing(report.get("facing", {})) + render_facing(shift.get("facing", {}), "held-out ")
+    facing += render_roles(report.get("roles", {})) + render_roles(shift.get("roles", {}), "held-out ")
     lines += facing + ([""] if facing else [])
     lines += render_detection(report.get("detection", {}))
     lines += render_medians(report, report)

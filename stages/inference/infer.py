@@ -13,7 +13,9 @@ its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
 JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
 ``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
 a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
-DIR``; docs/bev.md). ``--run RUN_ID`` picks the pipeline
+DIR``; docs/bev.md). Each owned wheel's front / rear role is read from which way its vehicle faces (its footprint,
+else the facing network's vector: ``deepword.wheel_roles``), not from the relation network's role head, which is near
+chance; ``--roles network`` keeps the method's. ``--run RUN_ID`` picks the pipeline
 run whose artifacts to use (default: the newest finished one; see ``stages.inference.resolve``), or
 ``--export DIR`` [``--evaluate DIR``] name the stage output directories directly.
 
@@ -42,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deepword.facing import FACING_KEY
 from deepword.inference.facing_net import OnnxFacing
 from deepword.inference.footprints import (
     CalibrationError,
@@ -71,6 +74,7 @@ from deepword.priors import load_priors
 from deepword.rules.baselines import BASELINES_FILE, baseline_from_params
 from deepword.rules.fallback import FALLBACKS, ClaimFallback
 from deepword.scoring.score import ScoreError, load_ground_truth
+from deepword.wheel_roles import FACING, FOOTPRINT, facing_roles, footprint_roles, with_roles
 from deepword.word_format import CAMERAS, DatasetError, Record, boxes_only, load_image, write_records
 from stages.inference.resolve import ResolveError, stage_dirs
 
@@ -170,7 +174,8 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, frame=None) -> P
     return path
 
 
-def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> tuple[list[Record], dict]:
+def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
+                   facing_net: OnnxFacing | None) -> tuple[list[Record], dict]:
     """Footprints for every prediction with a camera (``--calibration`` or the record's own), frame by frame as the
     bev stage estimates them (``estimate_frames``: one instant's images together, with the bev stage's prior and
     fusion radius, each vehicle's facing from the bundle's facing network where it has one); returns the predictions
@@ -211,7 +216,6 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> 
     except CalibrationError as exc:
         raise InferError(str(exc)) from None
     cams = {p.image: cam for p in preds if (cam := camera_of(p, per_image.get(p.image, calibration))) is not None}
-    facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
         preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p for p in preds]
     frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir),
@@ -220,6 +224,35 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of) -> 
     if check is not None:
         print(check, file=sys.stderr)
     return [with_objects_3d(p, frames[p.frame_id]) if p.image in cams else p for p in preds], frames
+
+
+def roles_from_front(preds: list[Record], frames: dict, facing_net: OnnxFacing | None, rgb_of) -> list[Record]:
+    """The predictions with each owned wheel's role read from which way its vehicle faces (``deepword.wheel_roles``):
+    from its fused footprint where the image has a camera, else from the facing network's vector of its vehicle box,
+    else as the relation method wrote it; with no facing network and no footprint, unchanged."""
+    out = []
+    for pred in preds:
+        if not pred.relations:
+            out.append(pred)
+            continue
+        frame = frames.get(pred.frame_id)
+        placed = frame is not None and pred.image in frame.contacts
+        if facing_net is not None and FACING_KEY not in pred.extra:
+            pred = facing_net.annotate(pred, rgb_of(pred))
+        rules = [(FACING, facing_roles(pred))] if facing_net is not None else []
+        if placed:
+            wheels, xy, ok = frame.contacts[pred.image]
+            contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+            rules.insert(0, (FOOTPRINT, footprint_roles(pred, frame.fused, contacts)))
+        out.append(with_roles(pred, rules) if rules else pred)
+    return out
+
+
+def with_calibration(pred: Record, source: Record) -> Record:
+    """``pred`` with ``source``'s ``calibration`` where it has one."""
+    if "calibration" not in source.extra:
+        return pred
+    return replace(pred, extra={**pred.extra, "calibration": source.extra["calibration"]})
 
 
 def infer(args) -> list[Record]:
@@ -249,7 +282,8 @@ def infer(args) -> list[Record]:
     if detect:
 
         detector = OnnxDetector(dirs["export"], args.threads)
-        every = [detector.detect_every(rgb_of(r), r) for r in records]
+        # a dataset's calibration goes with its detections: the footprints need the camera
+        every = [with_calibration(detector.detect_every(rgb_of(r), r), r) for r in records]
         # every detection down to the detector's score threshold: what AP integrates over (deepword score
         # --detections); the relations see only those at the operating point
         write_records(args.out / DETECTIONS_FILE, every)
@@ -266,7 +300,10 @@ def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, 
     """``labels.jsonl`` with the footprints where there are cameras (``add_footprints``), the first ``overlays``
     overlays (each with its image's top view), each frame's fused footprints ``footprints.jsonl`` and the top views of
     frames of several images ``top_views/`` beside the overlays."""
-    preds, frames = add_footprints(args, dirs, preds, rgb_of)
+    facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
+    preds, frames = add_footprints(args, dirs, preds, rgb_of, facing_net)
+    if args.roles == "front":
+        preds = roles_from_front(preds, frames, facing_net, rgb_of)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
         frame = frames.get(pred.frame_id)
@@ -301,6 +338,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--frame", action="store_true", help="the loose images are one instant's cameras (one frame): "
                    "each camera named by its calibration file, their footprints fused into top_views/frame_000000.png")
     p.add_argument("--bev", type=Path, help="a bev stage output directory (its footprint prior; default: the run's)")
+    p.add_argument("--roles", choices=("front", "network"), default="front",
+                   help="each wheel's front/rear role: read from which way its vehicle faces (its footprint, else "
+                        "the facing network's vector; default), or as the relation network wrote it")
     return p
 
 

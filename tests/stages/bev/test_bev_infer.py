@@ -12,6 +12,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from deepword.format_3d import record_objects_3d
+from deepword.wheel_roles import FOOTPRINT, ROLES_FROM_KEY
 from deepword.word_format import load_image, read_records, write_dataset_index, write_records
 from stages.bev.stage import run
 from stages.data.synword import generate
@@ -107,3 +108,37 @@ def test_the_bev_stage_scores_the_held_out_domain_beside_in_domain(bev_run):
     assert "# Held-out domain" in report and "held-out gt boxes: detection scores" in report
     assert json.loads((bev / "bev.json").read_text())["shift"]["frames"] == 2
     assert sorted(p.name for p in (bev / "artifacts").glob("shift_top_view_*.png"))
+
+
+def test_infer_names_each_wheels_role_from_its_vehicles_footprint_and_the_bev_stage_scores_it(bev_run):
+    """The predictions carry the true roles (a role head that is always right), so the footprints face the right way
+    and the roles read back from them must be the true ones; ``--roles network`` writes the method's roles as they
+    were."""
+    base, test, _, bev, metrics = bev_run
+    truth = {(r.image, v, w): role for r in test for v, w, role in r.relations}
+    for roles, out in (("front", base / "infer_roles"), ("network", base / "infer_network_roles")):
+        args = parser().parse_args(["--dataset", str(base / "data"), "--out", str(out), "--bev", str(bev),
+                                    "--roles", roles])
+        out.mkdir()
+        preds = write_predictions(args, {}, test, lambda r: load_image(base / "data", r), overlays=0)
+        written = {(p.image, v, w): role for p in preds for v, w, role in p.relations}
+        if roles == "network":
+            assert written == truth and not any(ROLES_FROM_KEY in p.extra for p in preds)
+            continue
+        decided = sum(p.extra[ROLES_FROM_KEY][FOOTPRINT] for p in preds)
+        assert decided >= 0.8 * len(truth), "most wheels have a contact and a footprint of their vehicle"
+        known = [k for k in truth if truth[k]]
+        right = sum(written[k] == truth[k] for k in known)
+        assert right >= 0.9 * len(known)
+        # the bev stage scores the roles infer writes
+        assert metrics["bev.gt.roles.acc"] == pytest.approx(100.0 * right / len(known))
+        assert metrics["bev.gt.roles.relations"] == len(known)
+        role_of = {(p.image, w): role for p in preds for _, w, role in p.relations}
+        for p in preds:   # couples rear first where their roles differ
+            for a, b in p.wheel_pairs:
+                assert (role_of.get((p.image, a)), role_of.get((p.image, b))) != ("front", "rear")
+    for root in ("bev", "bev.shift"):
+        assert metrics[f"{root}.gt.roles.relations"] > 0
+        assert metrics[f"{root}.gt.roles.network_acc"] == 100.0   # the predictions' roles are the truth's
+        assert metrics[f"{root}.gt.roles.acc"] > 50.0   # (a footprint the heading prior turns takes its roles along)
+    assert "front / rear roles are right for" in (bev / "bev_report.md").read_text()

@@ -91,7 +91,7 @@ def test_calibration_files_name_their_cameras_and_must_be_one_per_image(tmp_path
     assert args.frame and len(args.calibration) == 3
     _, recs, _ = _frame_views()
     with pytest.raises(InferError, match="3 files for 2 images"):
-        add_footprints(args, {}, recs, None)
+        add_footprints(args, {}, recs, None, None)
     assert isinstance(args, argparse.Namespace) and math.isfinite(PRIOR.width)
 
 

@@ -4,11 +4,13 @@ pipeline's fitted thresholds, no torch on the path, clear errors, and the MLflow
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 
 from deepword.word_format import read_records
 from stages.cli import main as deepword
@@ -248,3 +250,34 @@ def test_flip_averaged_relation_scores_do_not_depend_on_which_way_the_image_face
         assert np.allclose(a[k], b[k], atol=1e-6)
         assert np.allclose(a[k], (p[k] + q[k]) / 2, atol=1e-6)
     assert not np.allclose(p[0], q[0], atol=1e-4)
+
+
+def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exported, tmp_path):
+    """A dataset whose records carry their calibration gives footprints on detected boxes too: the detections keep
+    their image's camera."""
+    from deepword.footprint import FootprintPrior
+    from deepword.inference.footprints import PRIOR_FILE
+    from deepword.word_format import write_dataset_index, write_records
+    from stages.data.synword import FrameGenerator
+
+    cfg = OmegaConf.to_container(OmegaConf.load(REPO / "conf/data/synword.yaml"), resolve=True)
+    cfg["image_size"] = [320, 240]
+    data = tmp_path / "data"
+    records = []
+    for camera, rgb, rec in FrameGenerator(cfg, seed=0).render_frame(0):
+        (data / "images").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(data / "images" / f"{camera}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        records.append(replace(rec, image=f"images/{camera}.png"))
+    write_records(data / "labels.jsonl", records)
+    write_dataset_index(data, data, {"test": [r.image for r in records]})
+    bev = tmp_path / "bev"
+    bev.mkdir()
+    prior = FootprintPrior(width=1.8, length=4.5, wheelbase=2.7, length_slope=1.0, length_offset=1.8,
+                           track_inset=0.1, contact_shift=0.3, box_shift=2.5, height=1.5)
+    (bev / PRIOR_FILE).write_text(json.dumps(prior.to_json()))
+    out = tmp_path / "out"
+    assert infer(["--dataset", str(data), "--detect", "--out", str(out), "--export", str(exported[0]),
+                  "--bev", str(bev)]) == 0
+    preds = read_records(out / "labels.jsonl", root=data, allow_empty=True)
+    assert all("calibration" in p.extra and "objects_3d" in p.extra for p in preds)
+    assert (out / "footprints.jsonl").is_file()
