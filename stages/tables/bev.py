@@ -2,7 +2,7 @@
 metrics (the newest run with them where no default run has them): the nuScenes-style detection scores of every vehicle within range per box source and method, in domain and
 on the held-out domain, with the paired median of the vehicles that show two same-side wheels beside them (the
 figure earlier runs reported, so that the history reads on); then the end-to-end method's scores per wheel
-population and distance bin."""
+population and distance bin; then how often the wheels' front / rear roles are right."""
 
 from __future__ import annotations
 
@@ -71,9 +71,31 @@ def bev_tables(runs: list[RunRecord]) -> tuple[list[Table], dict]:
                         header, rows,
                         ["The wheel populations: by the most of a vehicle's wheels annotated in one of the frame's "
                          "images, within range; the distance bins by the vehicle's range. Same run as above."])
-    return [main, populations], {"bev": run.run_id}
+    return [main, populations, roles_table(m, e2e)], {"bev": run.run_id}
+
+
+# (metric key under bev.[shift.]<boxes>.roles., column): design.md §12
+ROLE_SCORES = (("relations", "true relations"), ("acc", "as `deepword infer` writes them (%)"),
+               ("footprint_share", "read from the footprint (% of them)"),
+               ("facing_acc", "from the facing vector alone (%)"), ("network_acc", "as the relation method names them (%)"))
+
+
+def roles_table(m: dict[str, float], e2e: str) -> Table:
+    """How often the wheels' front / rear roles are right: as ``deepword infer`` writes them (read from the vehicle's
+    footprint, else its facing vector), from the facing vector alone, and as the relation method named them."""
+    rows = []
+    for domain, domain_label in DOMAINS.items():
+        for boxes, boxes_label in BOXES.items():
+            cells = [_count(m.get(f"bev.{domain}{boxes}.roles.{k}"), k) for k, _ in ROLE_SCORES]
+            if any(c is not None for c in cells):
+                method = e2e if boxes == "detected" else "deepword"
+                rows.append([domain_label, boxes_label, f"`{method}`", *cells])
+    return Table("Wheel roles (front / rear)", ["Domain", "Boxes", "Method", *(label for _, label in ROLE_SCORES)],
+                 rows, ["Over the predicted relations that name a true relation whose role is known; the method is "
+                        "the one `deepword infer` runs on those boxes by default (docs/bev.md, \"The wheels' roles, "
+                        "read back from the front\"). Same run as above."])
 
 
 def _count(value: float | None, key: str) -> float | int | None:
     """A count as a whole number (MLflow stores every metric as a float)."""
-    return int(value) if key == "vehicles" and value is not None else value
+    return int(value) if key in ("vehicles", "relations") and value is not None else value

@@ -8,9 +8,9 @@ logged parameters equal the row's composed configuration (``RowMatcher``), which
 ``deepword.paper``), ``datasets.{md,csv,png}`` (the ``datasets`` sweep: one row per root seed),
 ``default_run.md``, ``default_run.csv``, ``default_run_detector.csv`` (the headline's run in full: every relation
 method on both box sources, in domain and held out, and the detector; ``stages.tables.default_run``),
-``bev.md``, ``bev.csv``, ``bev_populations.csv`` (the footprints scored the nuScenes way, per method and per wheel
-population, of the newest run with them; ``stages.tables.bev``), ``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out
-scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
+``bev.md``, ``bev.csv``, ``bev_populations.csv``, ``bev_roles.csv`` (the footprints scored the nuScenes way, per
+method and per wheel population, and the wheels' roles, of the newest run with them; ``stages.tables.bev``),
+``adapt.{md,csv,png}`` (the ``adapt`` sweep: held-out scores against the number of new-domain images labelled, per recipe; ``stages.tables.adapt``), logs them as
 artifacts of a run named ``comparison`` (tag ``kind=comparison``) in the same experiment, and with
 ``--results FILE`` writes the tables and charts, with the commit and date of every run, into that page.
 """
@@ -294,7 +294,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     for name, table in zip(("default_run", "default_run_detector"), tdr, strict=True):
         table.write_csv(out_dir / f"{name}.csv")
     (out_dir / "bev.md").write_text("\n".join(t.markdown() for t in tbs))
-    for name, table in zip(("bev", "bev_populations"), tbs, strict=False):
+    for name, table in zip(("bev", "bev_populations", "bev_roles"), tbs, strict=False):
         table.write_csv(out_dir / f"{name}.csv")
     bar_chart(tables, out_dir / "comparison.png")
     (out_dir / "datasets.md").write_text(td.markdown())

@@ -200,8 +200,9 @@ def test_bev_tables_take_the_newest_run_with_footprint_scores():
               "bev.shift.gt.deepword.all.aoe_deg": 42.3, "bev.gt.box_bottom.all.ap": 49.1,
               "bev.detected.deepword_then_logic.all.precision": 77.4,
               "bev.detected.deepword_then_logic.one_wheel.vehicles": 53.0,
-              "bev.shift.detected.deepword_then_logic.one_wheel.ap": 4.2}
-    (main, populations), used = bev_tables([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
+              "bev.shift.detected.deepword_then_logic.one_wheel.ap": 4.2,
+              "bev.detected.roles.acc": 90.8, "bev.detected.roles.relations": 740.0, "bev.shift.gt.roles.network_acc": 50.4}
+    (main, populations, roles), used = bev_tables([run("no-bev", {"eval.gt.logic.mixed.wheel_acc": 90.0}), run("new", newest),
                                             run("old", {"bev.gt.deepword.all.ap": 9.0})])
     assert used == {"bev": "new"}
     rows = {tuple(r[:3]): r[3:] for r in main.rows}
@@ -217,6 +218,11 @@ def test_bev_tables_take_the_newest_run_with_footprint_scores():
     assert one_wheel[populations.header[1:].index("vehicles in domain")] == 53   # a count, not 53.00
     assert one_wheel[populations.header[1:].index("AP (%) held out")] == 4.2
     assert "deepword_then_logic" in populations.title
+    role_rows = {tuple(r[:3]): r[3:] for r in roles.rows}
+    detected = role_rows[("in domain", "detected", "`deepword_then_logic`")]
+    assert detected[0] == 740 and detected[1] == 90.8   # a count, then the share infer writes right
+    assert role_rows[("held out", "ground truth", "`deepword`")][-1] == 50.4
+    assert ("in domain", "ground truth", "`deepword`") not in role_rows   # nothing logged
     empty, none = bev_tables([])
     assert none == {"bev": None} and len(empty) == 1 and not empty[0].rows
 
