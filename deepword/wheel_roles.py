@@ -98,3 +98,11 @@ def with_roles(rec, by_rule: list[tuple[str, Roles]]):
         role_of[w] = new
     pairs = [(b, a) if (role_of.get(a), role_of.get(b)) == ("front", "rear") else (a, b) for a, b in rec.wheel_pairs]
     return replace(rec, relations=relations, wheel_pairs=pairs, extra={**rec.extra, ROLES_FROM_KEY: counts})
+
+
+def roles_from_front(rec, groups=(), contacts: dict[int, np.ndarray] | None = None):
+    """``rec`` with its roles as ``deepword infer`` writes them (``with_roles``): from the footprint where its vehicle
+    has one from this image and the wheel a ground contact (``footprint_roles``; ``groups`` and ``contacts`` as it
+    takes them, none for an image without a camera), else from the facing vector (``facing_roles``), else the relation
+    method's."""
+    return with_roles(rec, [(FOOTPRINT, footprint_roles(rec, groups, contacts or {})), (FACING, facing_roles(rec))])

@@ -306,7 +306,7 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
     ``fused``: {frame: [(footprint, estimates)]} of the predictions' footprints. None where no relation qualifies."""
     from deepword.footprint import wheel_contacts
     from deepword.metrics import match_boxes
-    from deepword.wheel_roles import FACING, FOOTPRINT, facing_roles, footprint_roles, with_roles
+    from deepword.wheel_roles import facing_roles, footprint_roles, roles_from_front
     from deepword.word_format import WHEEL
 
     right = {"network": 0, "facing": 0, "shipped": 0}
@@ -322,7 +322,7 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
         contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
         by_footprint = footprint_roles(pred, fused.get(rec.frame_id, []), contacts)
         by_facing = facing_roles(pred)
-        shipped = {(v, w): r for v, w, r in with_roles(pred, [(FOOTPRINT, by_footprint), (FACING, by_facing)]).relations}
+        shipped = {(v, w): r for v, w, r in roles_from_front(pred, fused.get(rec.frame_id, []), contacts).relations}
         for v, w, role in pred.relations:
             true_role = truth.get((to_true.get(v), to_true.get(w)))
             if true_role is None:

@@ -74,7 +74,7 @@ from deepword.priors import load_priors
 from deepword.rules.baselines import BASELINES_FILE, baseline_from_params
 from deepword.rules.fallback import FALLBACKS, ClaimFallback
 from deepword.scoring.score import ScoreError, load_ground_truth
-from deepword.wheel_roles import FACING, FOOTPRINT, facing_roles, footprint_roles, with_roles
+from deepword.wheel_roles import roles_from_front
 from deepword.word_format import CAMERAS, DatasetError, Record, boxes_only, load_image, write_records
 from stages.inference.resolve import ResolveError, stage_dirs
 
@@ -226,25 +226,26 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
     return [with_objects_3d(p, frames[p.frame_id]) if p.image in cams else p for p in preds], frames
 
 
-def roles_from_front(preds: list[Record], frames: dict, facing_net: OnnxFacing | None, rgb_of) -> list[Record]:
-    """The predictions with each owned wheel's role read from which way its vehicle faces (``deepword.wheel_roles``):
-    from its fused footprint where the image has a camera, else from the facing network's vector of its vehicle box,
-    else as the relation method wrote it; with no facing network and no footprint, unchanged."""
+def add_roles(preds: list[Record], frames: dict, facing_net: OnnxFacing | None, rgb_of) -> list[Record]:
+    """The predictions with each owned wheel's role read from which way its vehicle faces
+    (``deepword.wheel_roles.roles_from_front``): from its fused footprint where the image has a camera, else from the
+    facing network's vector of its vehicle box, else as the relation method wrote it; a prediction neither reaches (no
+    camera, no facing network) is left as it was."""
     out = []
     for pred in preds:
-        if not pred.relations:
-            out.append(pred)
-            continue
         frame = frames.get(pred.frame_id)
         placed = frame is not None and pred.image in frame.contacts
+        if not pred.relations or (facing_net is None and not placed):
+            out.append(pred)
+            continue
         if facing_net is not None and FACING_KEY not in pred.extra:
             pred = facing_net.annotate(pred, rgb_of(pred))
-        rules = [(FACING, facing_roles(pred))] if facing_net is not None else []
         if placed:
             wheels, xy, ok = frame.contacts[pred.image]
             contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
-            rules.insert(0, (FOOTPRINT, footprint_roles(pred, frame.fused, contacts)))
-        out.append(with_roles(pred, rules) if rules else pred)
+            out.append(roles_from_front(pred, frame.fused, contacts))
+        else:
+            out.append(roles_from_front(pred))
     return out
 
 
@@ -303,7 +304,7 @@ def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, 
     facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
     preds, frames = add_footprints(args, dirs, preds, rgb_of, facing_net)
     if args.roles == "front":
-        preds = roles_from_front(preds, frames, facing_net, rgb_of)
+        preds = add_roles(preds, frames, facing_net, rgb_of)
     write_records(args.out / PREDICTIONS_FILE, preds)
     for pred in preds[:overlays]:
         frame = frames.get(pred.frame_id)

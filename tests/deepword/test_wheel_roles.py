@@ -17,6 +17,7 @@ from deepword.wheel_roles import (
     facing_roles,
     footprint_roles,
     network_roles,
+    roles_from_front,
     with_roles,
 )
 from deepword.word_format import VEHICLE, WHEEL, Record
@@ -82,3 +83,12 @@ def test_roles_read_from_the_heading_do_not_vote_for_it_again():
     rec = _record([130, 270], None, roles=["rear", "front"])
     assert network_roles(rec) == {10: "rear", 11: "front"}
     assert network_roles(with_roles(rec, [(FACING, {})])) == {}
+
+
+def test_infer_reads_the_footprint_first_then_the_facing_vector():
+    rec = _record([130, 270], [-1.0, 0.0], roles=["rear", "rear"])   # the facing vector says the front is at left
+    contacts = {11: np.array([6.3, 2.9])}                            # only the second wheel has a ground contact
+    out = roles_from_front(rec, _footprint(0.0), contacts)
+    assert out.relations == [(1, 10, "front"), (1, 11, "front")]
+    assert out.extra[ROLES_FROM_KEY] == {FOOTPRINT: 1, FACING: 1, NETWORK: 0}
+    assert roles_from_front(rec).relations == [(1, 10, "front"), (1, 11, "rear")]   # no camera: the vector alone
