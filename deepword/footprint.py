@@ -817,7 +817,9 @@ def orphan_sides(rec: Record, cam: Camera, prior: FootprintPrior, contacts: dict
         if a in owner or b in owner or a not in contacts or b not in contacts:
             continue
         a, b, vote = _ordered(a, b, roles, (a, b) in couple_order)
-        out.append(Estimate(box=_side_box(cam, contacts[a], contacts[b], prior), evidence="side", camera=rec.camera,
+        # the prior's height, as a side estimate of a vehicle box gets: a footprint is a box with a height
+        box = replace(_side_box(cam, contacts[a], contacts[b], prior), height=prior.height)
+        out.append(Estimate(box=box, evidence="side", camera=rec.camera,
                             vehicle_box_id=None, image=rec.image,
                             confidence=EVIDENCE_CONFIDENCE["side"] * ORPHAN_CONFIDENCE * (score[a] + score[b]) / 2,
                             role_vote=vote))

@@ -31,6 +31,7 @@ from deepword.detection.ap_errors import ap_error_breakdown, breakdown_markdown
 from deepword.metrics import evaluated_wheel_ids, score_records
 from deepword.scoring.pair_errors import RELATION_ORACLE, pair_errors_records, relation_oracle
 from deepword.scoring.report import render_markdown
+from deepword.scoring.roles import role_scores
 from deepword.word_format import (
     CLASS_NAMES,
     LABELS_FILE,
@@ -91,14 +92,25 @@ def score(gt_root: Path, pred_path: Path, min_box_px: float, match_iou: float, s
     errors = {s: pair_errors_records(recs, preds, min_box_px, match_iou).as_dict() for s, recs in subsets.items()}
     oracle = {image: relation_oracle(by_image[image], rec, match_iou) for image, rec in preds.items()}
     ceiling = {s: score_records(recs, oracle, min_box_px, match_iou).percentages() for s, recs in subsets.items()}
+    roles = role_scores(gts, preds, match_iou)
     missing = len(set(by_image) - set(preds))
     out = {"results": results, RELATION_ORACLE: ceiling, "pair_errors": errors, "sizes": sizes, "empty_subsets": empty,
-           "missing_images": missing,
+           "missing_images": missing, "roles": roles,
            "predictions": str(pred_path), "ground_truth": str(gt_root), "min_box_px": min_box_px,
            "match_iou": match_iou}
     if detections_path is not None:
         out["detector"] = detector_scores(detections_path, root, gts, min_box_px)
     return out
+
+
+def roles_note(roles: dict[str, float]) -> str:
+    """One line on the wheels' front / rear roles (``deepword.scoring.roles.role_scores``)."""
+    n = int(roles["relations"])
+    if n == 0:
+        return "wheel roles: no predicted relation names a true one whose role is labelled, so none is scored"
+    unnamed = int(roles["without_role"])
+    return (f"wheel roles (front / rear): right for {roles['role_acc']:.1f} % of the {n} true relations found whose "
+            f"role is labelled" + (f" ({unnamed} of them name no role)" if unnamed else ""))
 
 
 def detector_scores(path: Path, root: Path, gts: list[Record], min_box_px: float) -> dict:
@@ -146,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     notes = [f"{out['missing_images']} ground-truth images had no prediction (scored as no relations)"]
     notes += [f"{s}: no images, so no scores (its columns show -)" for s in out["empty_subsets"]]
+    notes += [roles_note(out["roles"])]
     print(render_markdown({"predictions": {args.name: out["results"], RELATION_ORACLE: out[RELATION_ORACLE]}},
                           out["sizes"], notes,
                           f"Scores of {args.pred} against {args.gt}",

@@ -298,14 +298,14 @@ def facing_agreement(test: list, preds: dict, match_iou: float = 0.5) -> dict | 
 
 def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, match_iou: float = 0.5) -> dict | None:
     """How often each way of naming a wheel's role (front / rear) is right, over the predicted relations that name a
-    true relation with a known role (both boxes matched at IoU >= ``match_iou``: ``deepword.metrics.match_boxes``):
+    true relation with a known role (both boxes matched at IoU >= ``match_iou``: ``deepword.scoring.roles.true_roles``):
     the relation method's own roles (``network_acc``, a relation without one counts as wrong), the facing vector's
     (``facing_acc``: ``deepword.wheel_roles.facing_roles``, what ``deepword infer`` writes without a calibration) and
     the roles ``deepword infer`` writes with one (``acc``: from the fused footprint, else the facing vector, else the
     method's), with how many relations (``relations``) and the share the footprint decided (``footprint_share``).
     ``fused``: {frame: [(footprint, estimates)]} of the predictions' footprints. None where no relation qualifies."""
     from deepword.footprint import wheel_contacts
-    from deepword.metrics import match_boxes
+    from deepword.scoring.roles import true_roles
     from deepword.wheel_roles import facing_roles, footprint_roles, roles_from_front
     from deepword.word_format import WHEEL
 
@@ -315,8 +315,7 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
         pred = preds.get(rec.image)
         if pred is None or not pred.relations:
             continue
-        truth = {(v, w): r for v, w, r in rec.relations if r}
-        to_true = match_boxes(rec, pred, match_iou)
+        judged = true_roles(rec, pred, match_iou)
         wheels = pred.boxes[pred.class_ids == WHEEL]
         xy, ok = wheel_contacts(cameras[rec.image], wheels[:, :4], prior) if len(wheels) else ([], [])
         contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
@@ -324,7 +323,7 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
         by_facing = facing_roles(pred)
         shipped = {(v, w): r for v, w, r in roles_from_front(pred, fused.get(rec.frame_id, []), contacts).relations}
         for v, w, role in pred.relations:
-            true_role = truth.get((to_true.get(v), to_true.get(w)))
+            true_role = judged.get((v, w))
             if true_role is None:
                 continue
             total += 1

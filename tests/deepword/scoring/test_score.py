@@ -28,6 +28,8 @@ def test_ground_truth_as_predictions_scores_100(data, tmp_path, capsys):
         assert all(v == 100.0 for v in res["relation_oracle"][subset].values())  # the boxes cost nothing
     assert "| relation_oracle |" in printed
     assert res["sizes"]["easy"]["images"] + res["sizes"]["hard"]["images"] == 20
+    # the tiny dataset labels no roles: none is scored, and the report says so
+    assert res["roles"]["relations"] == 0 and "no predicted relation names a true one whose role" in printed
 
 
 def test_an_empty_subset_says_so_instead_of_scoring_100(data, tmp_path, capsys):

@@ -49,6 +49,7 @@ def test_a_couple_no_vehicle_box_owns_is_a_side_of_its_own():
     assert math.hypot(e.box.x - v.x, e.box.y - v.y) < 0.05
     assert abs(math.degrees(math.remainder(e.box.yaw - v.yaw, math.pi))) < 0.5
     assert e.confidence == pytest.approx(EVIDENCE_CONFIDENCE["side"] * ORPHAN_CONFIDENCE * 0.7)
+    assert e.box.height == PRIOR.height   # a box of the prior's height, as a vehicle box's side estimate
 
 
 def test_a_couple_with_an_owned_wheel_gives_no_orphan():

@@ -121,6 +121,7 @@ def test_infer_names_each_wheels_role_from_its_vehicles_footprint_and_the_bev_st
                                     "--roles", roles])
         out.mkdir()
         preds = write_predictions(args, {}, test, lambda r: load_image(base / "data", r), overlays=0)
+        assert len(read_records(out / "labels.jsonl")) == len(preds)   # what infer writes passes the reader's checks
         written = {(p.image, v, w): role for p in preds for v, w, role in p.relations}
         if roles == "network":
             assert written == truth and not any(ROLES_FROM_KEY in p.extra for p in preds)
