@@ -74,7 +74,7 @@ from deepword.priors import load_priors
 from deepword.rules.baselines import BASELINES_FILE, baseline_from_params
 from deepword.rules.fallback import FALLBACKS, ClaimFallback
 from deepword.scoring.score import ScoreError, load_ground_truth
-from deepword.wheel_roles import roles_from_front
+from deepword.wheel_roles import ROLES_FROM_KEY, roles_from_front
 from deepword.word_format import CAMERAS, DatasetError, Record, boxes_only, load_image, write_records
 from stages.inference.resolve import ResolveError, stage_dirs
 
@@ -362,6 +362,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     n_rel = sum(len(r.relations) for r in preds)
     print(f"{len(preds)} images, {n_rel} owner-member relations -> {args.out / PREDICTIONS_FILE}")
+    decided = {}
+    for r in preds:
+        for rule, n in (r.extra.get(ROLES_FROM_KEY) or {}).items():
+            decided[rule] = decided.get(rule, 0) + n
+    if any(decided.values()):
+        print("wheel roles read from: " + ", ".join(f"{rule} {n}" for rule, n in decided.items())
+              + " (docs/bev.md, \"The wheels' roles, read back from the front\")")
     return 0
 
 

@@ -252,7 +252,7 @@ def test_flip_averaged_relation_scores_do_not_depend_on_which_way_the_image_face
     assert not np.allclose(p[0], q[0], atol=1e-4)
 
 
-def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exported, tmp_path):
+def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exported, tmp_path, capsys):
     """A dataset whose records carry their calibration gives footprints on detected boxes too: the detections keep
     their image's camera."""
     from deepword.footprint import FootprintPrior
@@ -281,3 +281,10 @@ def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exp
     preds = read_records(out / "labels.jsonl", root=data, allow_empty=True)
     assert all("calibration" in p.extra and "objects_3d" in p.extra for p in preds)
     assert (out / "footprints.jsonl").is_file()
+    # on the dataset's own boxes DeepWORD claims wheels: their roles are read from the footprints, and infer says so
+    capsys.readouterr()
+    assert infer(["--dataset", str(data), "--out", str(tmp_path / "own"), "--export", str(exported[0]),
+                  "--bev", str(bev)]) == 0
+    own = read_records(tmp_path / "own" / "labels.jsonl", root=data)
+    assert any(p.relations for p in own) and all("roles_from" in p.extra for p in own if p.relations)
+    assert "wheel roles read from: footprint " in capsys.readouterr().out
