@@ -10,8 +10,7 @@ from deepword.word_format import Record
 
 def true_roles(gt: Record, pred: Record, match_iou: float = 0.5) -> dict[tuple[int, int], str]:
     """{(predicted vehicle id, predicted wheel id): the true role} of the predicted relations that name a true
-    relation whose role is known (both boxes matched: ``match_boxes``): where a predicted role can be judged. Roles
-    are scored apart from the §7 metrics, which leave them out."""
+    relation whose role is known (both boxes matched: ``match_boxes``): where a predicted role can be judged."""
     truth = {(v, w): r for v, w, r in gt.relations if r}
     to_gt = match_boxes(gt, pred, match_iou)
     found = {}
