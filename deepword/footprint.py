@@ -686,15 +686,20 @@ def orient(box: Box3D, headings: list[float]) -> Box3D:
     return box
 
 
+def record_contacts(rec: Record, cam: Camera, prior: FootprintPrior | None) -> dict[int, np.ndarray]:
+    """{wheel box_id: ground contact (x, y)} of the record's wheels whose contact is found (``wheel_contacts``)."""
+    wheels = rec.boxes[rec.class_ids == WHEEL]
+    if not len(wheels):
+        return {}
+    xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
+    return {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+
+
 def estimate_record(rec: Record, cam: Camera, prior: FootprintPrior, use_relations: bool = True,
                     context: list[Box3D] | None = None) -> list[Estimate]:
     """One footprint per vehicle box of ``rec`` from its predicted relations and couples
     (``use_relations=False``: the ``box_bottom`` baseline)."""
-    contacts = {}
-    wheels = rec.boxes[rec.class_ids == WHEEL]
-    if len(wheels) and use_relations:
-        xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
-        contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+    contacts = record_contacts(rec, cam, prior) if use_relations else {}
     return footprints_from_contacts(rec, cam, prior, contacts, use_relations, context)
 
 
@@ -1008,14 +1013,7 @@ def estimate_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, us
     axes of the frame's footprints resting on a side's two wheels (``context_axes``) as their context. ``contacts``:
     the wheels' ground contacts per view (``wheel_contacts`` when not given)."""
     if contacts is None:
-        contacts = []
-        for rec, cam in views:
-            wheels = rec.boxes[rec.class_ids == WHEEL]
-            found = {}
-            if len(wheels) and use_relations:
-                xy, ok = wheel_contacts(cam, wheels[:, :4], prior)
-                found = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
-            contacts.append(found)
+        contacts = [record_contacts(rec, cam, prior) if use_relations else {} for rec, cam in views]
     context = [e.box for (rec, cam), found in zip(views, contacts, strict=True)
                for e in footprints_from_contacts(rec, cam, prior, found, use_relations, weak=False)
                if e.evidence in CONTEXT_EVIDENCE] if use_relations else None

@@ -100,9 +100,13 @@ def with_roles(rec, by_rule: list[tuple[str, Roles]]):
     return replace(rec, relations=relations, wheel_pairs=pairs, extra={**rec.extra, ROLES_FROM_KEY: counts})
 
 
+def front_rules(rec, groups=(), contacts: dict[int, np.ndarray] | None = None) -> list[tuple[str, Roles]]:
+    """The rules ``deepword infer`` reads roles by, in the order they decide (``with_roles``): the footprint where the
+    vehicle has one from this image and the wheel a ground contact (``footprint_roles``; ``groups`` and ``contacts``
+    as it takes them, none for an image without a camera), then the facing vector (``facing_roles``)."""
+    return [(FOOTPRINT, footprint_roles(rec, groups, contacts or {})), (FACING, facing_roles(rec))]
+
+
 def roles_from_front(rec, groups=(), contacts: dict[int, np.ndarray] | None = None):
-    """``rec`` with its roles as ``deepword infer`` writes them (``with_roles``): from the footprint where its vehicle
-    has one from this image and the wheel a ground contact (``footprint_roles``; ``groups`` and ``contacts`` as it
-    takes them, none for an image without a camera), else from the facing vector (``facing_roles``), else the relation
-    method's."""
-    return with_roles(rec, [(FOOTPRINT, footprint_roles(rec, groups, contacts or {})), (FACING, facing_roles(rec))])
+    """``rec`` with its roles as ``deepword infer`` writes them: ``front_rules``, else the relation method's."""
+    return with_roles(rec, front_rules(rec, groups, contacts))

@@ -75,6 +75,11 @@ class Frame:
     fused: list[tuple[Box3D, list[Estimate]]]
     contacts: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]   # image -> (wheel boxes, contacts, valid)
 
+    def wheel_contacts(self, image: str) -> dict[int, np.ndarray]:
+        """{wheel box_id: ground contact (x, y)} of the image's wheels whose contact is found."""
+        wheels, xy, ok = self.contacts[image]
+        return {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+
     def groups_of(self, image: str) -> list[tuple[Box3D, list[Estimate]]]:
         """The fused footprints one of whose estimates comes from ``image``."""
         return [(box, g) for box, g in self.fused if any(e.image == image for e in g)]
@@ -123,9 +128,8 @@ def with_objects_3d(pred: Record, frame: Frame) -> Record:
     contact point; in the calibration's vehicle frame."""
     objs = {str(e.vehicle_box_id): footprint_json(box, g)   # a couple no vehicle box owns: footprints.jsonl alone
             for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image and e.vehicle_box_id is not None}
-    wheels, xy, ok = frame.contacts[pred.image]
-    objs.update({str(int(w[6])): {"contact": [round(float(v), 4) for v in xy[i]]}
-                 for i, w in enumerate(wheels) if ok[i]})
+    objs.update({str(w): {"contact": [round(float(v), 4) for v in xy]}
+                 for w, xy in frame.wheel_contacts(pred.image).items()})
     return replace(pred, extra={**pred.extra, "objects_3d": objs})
 
 

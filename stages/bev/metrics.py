@@ -304,10 +304,9 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
     the roles ``deepword infer`` writes with one (``acc``: from the fused footprint, else the facing vector, else the
     method's), with how many relations (``relations``) and the share the footprint decided (``footprint_share``).
     ``fused``: {frame: [(footprint, estimates)]} of the predictions' footprints. None where no relation qualifies."""
-    from deepword.footprint import wheel_contacts
+    from deepword.footprint import record_contacts
     from deepword.scoring.roles import true_roles
-    from deepword.wheel_roles import facing_roles, footprint_roles, roles_from_front
-    from deepword.word_format import WHEEL
+    from deepword.wheel_roles import front_rules, with_roles
 
     right = {"network": 0, "facing": 0, "shipped": 0}
     total = decided = 0
@@ -316,12 +315,9 @@ def role_agreement(test: list, preds: dict, fused: dict, cameras: dict, prior, m
         if pred is None or not pred.relations:
             continue
         judged = true_roles(rec, pred, match_iou)
-        wheels = pred.boxes[pred.class_ids == WHEEL]
-        xy, ok = wheel_contacts(cameras[rec.image], wheels[:, :4], prior) if len(wheels) else ([], [])
-        contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
-        by_footprint = footprint_roles(pred, fused.get(rec.frame_id, []), contacts)
-        by_facing = facing_roles(pred)
-        shipped = {(v, w): r for v, w, r in roles_from_front(pred, fused.get(rec.frame_id, []), contacts).relations}
+        rules = front_rules(pred, fused.get(rec.frame_id, []), record_contacts(pred, cameras[rec.image], prior))
+        (_, by_footprint), (_, by_facing) = rules
+        shipped = {(v, w): r for v, w, r in with_roles(pred, rules).relations}
         for v, w, role in pred.relations:
             true_role = judged.get((v, w))
             if true_role is None:

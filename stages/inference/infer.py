@@ -240,12 +240,8 @@ def add_roles(preds: list[Record], frames: dict, facing_net: OnnxFacing | None, 
             continue
         if facing_net is not None and FACING_KEY not in pred.extra:
             pred = facing_net.annotate(pred, rgb_of(pred))
-        if placed:
-            wheels, xy, ok = frame.contacts[pred.image]
-            contacts = {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
-            out.append(roles_from_front(pred, frame.fused, contacts))
-        else:
-            out.append(roles_from_front(pred))
+        out.append(roles_from_front(pred, frame.fused, frame.wheel_contacts(pred.image)) if placed
+                   else roles_from_front(pred))
     return out
 
 
