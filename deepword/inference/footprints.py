@@ -6,7 +6,9 @@ WoodScape JSON file."""
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +36,9 @@ PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape st
 BEV_REPORT = "bev.json"                 # the bev stage's numbers, with the fusion radius it used
 FOOTPRINTS_FILE = "footprints.jsonl"    # infer's fused footprints per frame, as the bev stage's footprints/*.jsonl
 DEFAULT_FUSE_RADIUS_M = 1.5             # conf/bev/default.yaml's fuse_radius_m, for a bev output without bev.json's
+# A spawned process costs 2-3 s before it fits anything (importing NumPy, OpenCV and the project), about what a few
+# frames take: frames go to worker processes only where each gets at least this many, in chunks of this many
+FRAMES_PER_TASK = 8
 
 
 class CalibrationError(ValueError):
@@ -97,16 +102,31 @@ def load_fuse_radius(bev_dir: Path) -> float:
 
 def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
                     fuse_radius_m: float = DEFAULT_FUSE_RADIUS_M,
-                    facing_val_accuracy: float | None = None) -> dict[int, Frame]:
+                    facing_val_accuracy: float | None = None, progress=None, workers: int = 1) -> dict[int, Frame]:
     """The footprints of every frame among ``views`` [(prediction, camera)], grouped by ``frame_id``: each frame's
     images estimated and fused together (``frame_footprints``, as the bev stage does: neighbours' axes across the
     cameras, headings by the roles' votes and the prior's heading table). With ``facing_val_accuracy`` (the facing
     network's, 0-1) the facing votes are weighed by ``facing_trust`` over all the frames, as the bev stage weighs
-    them over a test set."""
+    them over a test set. ``progress(items, total)``: wraps the loop over the frames (e.g. ``deepword.progress``'s
+    ``progress_lines``). ``workers`` > 1: up to that many spawned processes fit the frames (a frame's footprints
+    depend on that frame alone, so the result is the same for any number)."""
     by_frame: dict[int, list] = {}
     for pred, cam in views:
         by_frame.setdefault(pred.frame_id, []).append((pred, cam))
-    estimated = {frame_id: frame_footprints(fviews, prior, fuse_radius_m) for frame_id, fviews in by_frame.items()}
+    fit = partial(_fit_frame, prior=prior, fuse_radius_m=fuse_radius_m)
+    workers = max(1, min(int(workers), len(by_frame) // FRAMES_PER_TASK))
+    if workers == 1:
+        fitted = map(fit, by_frame.values())
+    else:   # spawn: safe whatever threads the parent runs (onnxruntime's)
+        pool = mp.get_context("spawn").Pool(workers)
+        fitted = pool.imap(fit, by_frame.values(), chunksize=FRAMES_PER_TASK)
+    try:
+        fitted = fitted if progress is None else progress(fitted, len(by_frame))
+        estimated = dict(zip(by_frame, fitted, strict=True))
+    finally:
+        if workers > 1:
+            pool.close()
+            pool.join()
     if facing_val_accuracy is not None:
         weight = facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
         estimated = refuse_weighed(estimated, weight, fuse_radius_m, prior)
@@ -120,6 +140,11 @@ def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
             contacts[pred.image] = (wheels, xy, ok)
         frames[frame_id] = Frame(frame_id, fviews, fused, contacts)
     return frames
+
+
+def _fit_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, fuse_radius_m: float):
+    """One frame's ``frame_footprints`` (a module-level function: what a worker process is handed)."""
+    return frame_footprints(views, prior, fuse_radius_m)
 
 
 def with_objects_3d(pred: Record, frame: Frame) -> Record:

@@ -29,7 +29,9 @@ are one frame with ``--frame`` and one ``--calibration`` file per image, each na
 writes ``DIR/detections.jsonl``: every detection down to its score threshold, without relations (the
 operating point cuts them for the relations; average precision needs them all). Score a dataset's
 predictions with ``deepword score --gt ROOT --pred DIR/labels.jsonl [--detections DIR/detections.jsonl]``
-(the second adds the detector's AP and where it goes). Bad input exits with code 2 and a message naming the
+(the second adds the detector's AP and where it goes). On a dataset each pass over the images prints progress
+lines, the decoded images stay in memory between passes within ``--image-memory-mb`` (decoded again beyond it), and
+``--threads N`` processes fit the frames' footprints; none of it changes a prediction. Bad input exits with code 2 and a message naming the
 file (and line and field for a labels file), without a traceback.
 """
 
@@ -71,11 +73,13 @@ from deepword.inference.runtime import (
 )
 from deepword.overlay import draw_relations
 from deepword.priors import load_priors
+from deepword.progress import progress_lines
 from deepword.rules.baselines import BASELINES_FILE, baseline_from_params
 from deepword.rules.fallback import FALLBACKS, ClaimFallback
 from deepword.scoring.score import ScoreError, load_ground_truth
 from deepword.wheel_roles import ROLES_FROM_KEY, roles_from_front
 from deepword.word_format import CAMERAS, DatasetError, Record, boxes_only, load_image, write_records
+from stages.inference.image_cache import DEFAULT_BUDGET_MB, DecodedImages
 from stages.inference.resolve import ResolveError, stage_dirs
 
 BASELINES = ("logic", "logic_plus", "prior")
@@ -83,6 +87,7 @@ METHODS = (*METHOD_VARIANTS, *BASELINES, *FALLBACKS)
 PREDICTIONS_FILE = "labels.jsonl"
 DETECTIONS_FILE = "detections.jsonl"
 OVERLAY_DIR = "overlays"
+PROGRESS_MIN_IMAGES = 50   # a few loose photographs print no progress lines; a dataset prints one per tenth of a pass
 
 
 class InferError(RuntimeError):
@@ -101,19 +106,27 @@ def read_image(path: Path) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def image_records(paths: list[Path], camera: str) -> tuple[Path, list[Record], dict[str, np.ndarray]]:
-    """Records without boxes for loose images: (their common folder = the root, records, {image: RGB})."""
-    images = {p: read_image(p) for p in paths}
+def progress(items, total: int, desc: str, unit: str = "image"):
+    """``items`` with progress lines on stderr (``deepword.progress``) where there are ``PROGRESS_MIN_IMAGES`` or
+    more."""
+    return progress_lines(items, total, desc, unit) if total >= PROGRESS_MIN_IMAGES else items
+
+
+def image_records(paths: list[Path], camera: str, pixels: DecodedImages) -> tuple[Path, list[Record]]:
+    """Records without boxes for loose images: (their common folder = the root, records); each image read once here
+    (an unreadable one is an error before anything runs) and offered to ``pixels``."""
     root = Path(os.path.commonpath([str(p.resolve().parent) for p in paths]))
-    records, pixels = [], {}
-    for i, (path, rgb) in enumerate(images.items()):
+    records, seen = [], set()
+    for i, path in enumerate(progress(paths, len(paths), "reading")):
+        rgb = read_image(path)
         rel = path.resolve().relative_to(root).as_posix()
-        if rel in pixels:
+        if rel in seen:
             raise InferError(f"{path}: the same image is given twice")
-        pixels[rel] = rgb
+        seen.add(rel)
+        pixels.put(rel, rgb)
         records.append(Record(image=rel, frame_id=i, camera=camera, width=rgb.shape[1], height=rgb.shape[0],
                               boxes=np.zeros((0, 7)), relations=[], wheel_pairs=[]))
-    return root, records, pixels
+    return root, records
 
 
 def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
@@ -217,9 +230,12 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
         raise InferError(str(exc)) from None
     cams = {p.image: cam for p in preds if (cam := camera_of(p, per_image.get(p.image, calibration))) is not None}
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
-        preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p for p in preds]
+        preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
+                 for p in progress(preds, len(preds), "facing network")]
     frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir),
-                             facing_net.accuracy if facing_net is not None else None)
+                             facing_net.accuracy if facing_net is not None else None,
+                             progress=lambda items, n: progress(items, n, "footprints", "frame"),
+                             workers=args.threads)
     check = facing_check(frames, facing_net.accuracy) if facing_net is not None else None
     if check is not None:
         print(check, file=sys.stderr)
@@ -254,33 +270,36 @@ def with_calibration(pred: Record, source: Record) -> Record:
 
 def infer(args) -> list[Record]:
     dirs = resolve_dirs(args, need_detector=args.detect or args.dataset is None)
+    if args.image_memory_mb < 0:
+        raise InferError(f"--image-memory-mb {args.image_memory_mb}: expected 0 or more")
+    # each pass over the images (detector, relations, facing network, overlays) reads them again: kept decoded within
+    # the budget, decoded again beyond it (stages/inference/image_cache.py)
+    pixels = DecodedImages(args.image_memory_mb * 2**20)
     if args.dataset is not None:
 
         try:
             root, records = load_ground_truth(args.dataset)
         except ScoreError as exc:
             raise InferError(str(exc)) from None
-        pixels: dict[str, np.ndarray] = {}
         detect = args.detect
         records = [boxes_only(r) for r in records]
         overlays = args.overlays
     else:
-        root, records, pixels = image_records(args.images, args.camera)
+        root, records = image_records(args.images, args.camera, pixels)
         if args.frame:  # the images are one instant's cameras: one frame
             records = [replace(r, frame_id=0) for r in records]
         detect, overlays = True, len(records)
 
     def rgb_of(rec: Record) -> np.ndarray:
-        if rec.image not in pixels:
-            pixels[rec.image] = load_image(root, rec)
-        return pixels[rec.image]
+        return pixels.get(rec.image, lambda: load_image(root, rec))
 
     args.out.mkdir(parents=True, exist_ok=True)
     if detect:
 
         detector = OnnxDetector(dirs["export"], args.threads)
         # a dataset's calibration goes with its detections: the footprints need the camera
-        every = [with_calibration(detector.detect_every(rgb_of(r), r), r) for r in records]
+        every = [with_calibration(detector.detect_every(rgb_of(r), r), r)
+                 for r in progress(records, len(records), "detector")]
         # every detection down to the detector's score threshold: what AP integrates over (deepword score
         # --detections); the relations see only those at the operating point
         write_records(args.out / DETECTIONS_FILE, every)
@@ -290,7 +309,8 @@ def infer(args) -> list[Record]:
         why = "the bundle's end-to-end method" if detect else "on the dataset's own boxes"
         print(f"method: {name} ({why})", file=sys.stderr)
     method = build_method(name, dirs, root, args.threads, rgb_of)
-    return write_predictions(args, dirs, [method.predict(r) for r in records], rgb_of, overlays)
+    preds = [method.predict(r) for r in progress(records, len(records), f"relations ({name})")]
+    return write_predictions(args, dirs, preds, rgb_of, overlays)
 
 
 def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, overlays: int) -> list[Record]:
@@ -328,7 +348,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--cache-dir", help="the pipeline's cache directory (default: $DEEPWORD_CACHE or the run's)")
     p.add_argument("--camera", choices=CAMERAS, default="front", help="camera name written for loose images")
     p.add_argument("--overlays", type=int, default=0, help="with --dataset: overlays for the first N images")
-    p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    p.add_argument("--threads", type=int, default=1,
+                   help="onnxruntime intra-op threads, and processes fitting the footprints of a dataset's frames")
+    p.add_argument("--image-memory-mb", type=int, default=DEFAULT_BUDGET_MB,
+                   help="decoded images kept in memory between the passes over them, at most this many MiB; beyond it "
+                        "an image is decoded again (default: %(default)s)")
     p.add_argument("--calibration", type=Path, nargs="+", help="WoodScape-style calibration JSON of the loose "
                    "images' camera, or one per image in the images' order (footprints in bird's-eye view; a dataset's "
                    "own `calibration` needs no flag)")

@@ -31,6 +31,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from deepword.inference.runtime import (
     BUNDLE_FILE,
     METHOD_VARIANTS,
@@ -58,6 +60,7 @@ from deepword.rules.fallback import FALLBACKS, batch_with_fallback
 from deepword.scoring.score import ScoreError, load_ground_truth
 from deepword.word_format import DatasetError, Record, boxes_only, load_image
 from deepword.word_format.dataset import open_dataset
+from stages.inference.image_cache import DEFAULT_BUDGET_MB, DecodedImages
 from stages.inference.infer import resolve_dirs
 from stages.inference.resolve import ResolveError
 
@@ -152,16 +155,21 @@ def tune(args) -> dict:
     prior_truths = keyed
 
     detector = OnnxDetector(export, args.threads, at_operating_point=False)
-    pixels = {}
+    # the detector's pass and the relation network's read each image: kept decoded between them within the budget
+    # (stages/inference/image_cache.py)
+    pixels = DecodedImages(DEFAULT_BUDGET_MB * 2**20)
+    stored_of = {truth.image: (source_root, stored) for source_root, stored, truth in sources}
+
+    def rgb_of(rec: Record) -> np.ndarray:
+        return pixels.get(rec.image, lambda: load_image(*stored_of[rec.image]))
+
     found = []
     # a bar on a terminal, plain lines in a log (deepword/progress.py)
-    for source_root, stored, truth in progress_lines(sources, len(sources), "detector", "image"):
-        pixels[truth.image] = load_image(source_root, stored)
-        found.append(detector.detect_every(pixels[truth.image], boxes_only(truth)))
+    for _, _, truth in progress_lines(sources, len(sources), "detector", "image"):
+        found.append(detector.detect_every(rgb_of(truth), boxes_only(truth)))
     detections, prior_detections = found[:len(truths)], found[len(truths):]
     progress = ProgressCounter("relation model on subsets of the boxes", "subset")
-    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), found,
-                              lambda r: pixels[r.image], progress=progress)
+    relation = SubsetRelation(OnnxRelation(export, "dynamic", args.threads), found, rgb_of, progress=progress)
     pixels.clear()   # every image's graph (its boxes' crops) is built: the decoded images are not needed again
     method = relation if name in METHOD_VARIANTS else batch_with_fallback(relation, bundle_rule(export, FALLBACKS[name][1]))
     points = len(thresholds) ** len(classes) * math.prod(len(v) for v in sides.values())

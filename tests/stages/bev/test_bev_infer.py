@@ -143,3 +143,21 @@ def test_infer_names_each_wheels_role_from_its_vehicles_footprint_and_the_bev_st
         assert metrics[f"{root}.gt.roles.network_acc"] == 100.0   # the predictions' roles are the truth's
         assert metrics[f"{root}.gt.roles.acc"] > 50.0   # (a footprint the heading prior turns takes its roles along)
     assert "front / rear roles are right for" in (bev / "bev_report.md").read_text()
+
+
+def test_footprints_fitted_in_worker_processes_are_the_ones_fitted_in_one(bev_run, monkeypatch):
+    """``deepword infer --threads N`` fits a dataset's frames in N processes; a frame's footprints depend on that frame
+    alone, so they are the same."""
+    from deepword.format_3d import record_camera
+    from deepword.inference import footprints
+
+    base, test, _, bev, _ = bev_run
+    prior = footprints.load_prior(bev)
+    views = [(r, record_camera(r, "the test")) for r in test]
+    monkeypatch.setattr(footprints, "FRAMES_PER_TASK", 1)   # the fixture's two test frames: one a process
+    seen = []
+    one = footprints.estimate_frames(views, prior, workers=1)
+    two = footprints.estimate_frames(views, prior, workers=2,
+                                     progress=lambda items, n: (seen.append(n), items)[1])
+    assert seen == [2] and list(one) == list(two) == sorted({r.frame_id for r in test})
+    assert all(one[f].fused == two[f].fused and one[f].fused for f in one)
