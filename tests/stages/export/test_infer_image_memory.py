@@ -54,3 +54,18 @@ def test_predictions_do_not_depend_on_the_image_memory_and_a_dataset_shows_progr
     assert infer(["--dataset", str(upstream["data"]), "--out", str(tmp_path / "x"), "--export", str(exported[0]),
                   "--image-memory-mb", "-1"]) == 2
     assert "--image-memory-mb -1: expected 0 or more" in capsys.readouterr().err
+
+
+def test_loose_images_are_read_once_up_front_and_an_image_given_twice_is_an_error(exported, generated_images,
+                                                                                  tmp_path, capsys):
+    first = str(generated_images[0])
+    assert infer([first, first, "--out", str(tmp_path / "out"), "--export", str(exported[0])]) == 2
+    assert f"{first}: the same image is given twice" in capsys.readouterr().err
+    # a budget smaller than one image: every pass decodes the loose images again, with the same predictions
+    outs = []
+    for budget in ("2048", "0"):
+        out = tmp_path / budget
+        assert infer([*map(str, generated_images), "--out", str(out), "--export", str(exported[0]),
+                      "--image-memory-mb", budget]) == 0
+        outs.append((out / "labels.jsonl").read_bytes())
+    assert outs[0] == outs[1]
