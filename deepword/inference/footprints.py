@@ -229,6 +229,56 @@ def calibration_camera(cal: dict, path: Path, default: str) -> str:
     return default
 
 
+RIG_NAMING = ("a camera-named folder in its path (front/, left/, rear/, right/) or a WoodScape suffix (_FV, _MVL, "
+              "_MVR, _RV), and the frame's number in its name (000042.png, 00042_FV.png)")
+
+
+def rig_view_of(path: Path) -> tuple[str, int] | None:
+    """(camera, frame number) of an image of a recorded drive, from its path: the camera from a camera-named folder
+    (``front/000042.png``, the importer's convention) or a WoodScape suffix (``00042_FV.png``), the frame from the
+    digits of its name; None where either is missing (``RIG_NAMING``)."""
+    path = Path(path)
+    stem, camera = path.stem, None
+    head, _, suffix = stem.rpartition("_")
+    if head and suffix.upper() in WOODSCAPE_CAMERAS:
+        stem, camera = head, WOODSCAPE_CAMERAS[suffix.upper()]
+    for part in reversed(path.parent.parts):
+        if camera is None and part in CAMERAS:
+            camera = part
+    if camera is None or not stem.isdigit():
+        return None
+    return camera, int(stem)
+
+
+def read_rig_calibrations(folder: Path, sizes: dict[str, tuple[int, int]]) -> dict[str, dict]:
+    """{camera: calibration} for the cameras of ``sizes`` ({camera: (width, height)} of its images) from the JSON
+    files of ``folder``, one per camera, each named by its ``name`` or its file's stem (``calibration_camera``) and
+    validated for its images' size. CalibrationError naming the folder or file where a camera has none, or two."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CalibrationError(f"{folder}: not a folder (the rig's calibrations: one JSON file per camera)")
+    found: dict[str, Path] = {}
+    for path in sorted(folder.glob("*.json")):
+        try:
+            cal = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise CalibrationError(f"{path}: not JSON ({exc})") from None
+        camera = calibration_camera(cal if isinstance(cal, dict) else {}, path, "")
+        if camera in found:
+            raise CalibrationError(f"{folder}: two calibrations of the {camera} camera ({found[camera].name}, "
+                                   f"{path.name})")
+        if camera:
+            found[camera] = path
+    out = {}
+    for camera, (width, height) in sorted(sizes.items()):
+        if camera not in found:
+            raise CalibrationError(f"{folder}: no calibration of the {camera} camera (a JSON file named {camera}.json "
+                                   f"or {next(k for k, v in WOODSCAPE_CAMERAS.items() if v == camera)}.json, or with "
+                                   f"that \"name\")")
+        out[camera] = read_calibration_file(found[camera], width, height)
+    return out
+
+
 def frame_top_view(frame: Frame, title: str, half_extent_m: float = 14.0, size_px: int = 420) -> np.ndarray:
     """One instant's top view: the frame's fused footprints around the rig of all its cameras, coloured by the camera
     whose estimate leads each, an arrow to the front where the wheels' roles voted."""

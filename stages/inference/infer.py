@@ -25,7 +25,9 @@ the dataset root, or to the images' common folder) and, per image, a Fig. 5-styl
 footprints ``DIR/footprints.jsonl`` (the images of one instant estimated and fused together exactly as the bev stage
 does: its prior with the heading table, its fusion radius) and, per frame of two or more images one of which is
 overlaid, the top view of the frame's fused footprints ``DIR/top_views/frame_<id>.png`` (loose images
-are one frame with ``--frame`` and one ``--calibration`` file per image, each naming its camera). Wherever the detector runs it also
+are one frame with ``--frame`` and one ``--calibration`` file per image, each naming its camera; a recorded
+drive's are a frame per instant with ``--rig DIR``, each image's camera and instant read from its path and each
+camera's calibration from DIR). Wherever the detector runs it also
 writes ``DIR/detections.jsonl``: every detection down to its score threshold, without relations (the
 operating point cuts them for the relations; average precision needs them all). Score a dataset's
 predictions with ``deepword score --gt ROOT --pred DIR/labels.jsonl [--detections DIR/detections.jsonl]``
@@ -49,6 +51,7 @@ import numpy as np
 from deepword.facing import FACING_KEY
 from deepword.inference.facing_net import OnnxFacing
 from deepword.inference.footprints import (
+    RIG_NAMING,
     CalibrationError,
     beside_top_view,
     calibration_camera,
@@ -58,6 +61,8 @@ from deepword.inference.footprints import (
     load_fuse_radius,
     load_prior,
     read_calibration_file,
+    read_rig_calibrations,
+    rig_view_of,
     with_objects_3d,
     write_frame_footprints,
     write_frame_views,
@@ -129,6 +134,23 @@ def image_records(paths: list[Path], camera: str, pixels: DecodedImages) -> tupl
     return root, records
 
 
+def rig_records(paths: list[Path], records: list[Record]) -> list[Record]:
+    """``records`` (of the images ``paths``, in order) with each one's camera and frame number read from its path
+    (``rig_view_of``), so that one instant's images are estimated and fused together; InferError naming the image
+    where the path does not tell them, or where two images are one camera's at one instant."""
+    seen: dict[tuple[str, int], Path] = {}
+    out = []
+    for path, rec in zip(paths, records, strict=True):
+        view = rig_view_of(path)
+        if view is None:
+            raise InferError(f"{path}: --rig reads each image's camera and frame from its path: {RIG_NAMING}")
+        if view in seen:
+            raise InferError(f"{path}: the {view[0]} camera's image of frame {view[1]} again (first {seen[view]})")
+        seen[view] = path
+        out.append(replace(rec, camera=view[0], frame_id=view[1]))
+    return out
+
+
 def resolve_dirs(args, need_detector: bool) -> dict[str, Path]:
     """The export (and, for a baseline, evaluate) stage directories to use."""
 
@@ -196,7 +218,20 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
 
     calibration, per_image = None, {}
     files = args.calibration or []
-    if len(files) > 1:  # one calibration file per image, in the images' order (e.g. one frame's four cameras)
+    if args.rig is not None:   # each image's camera named by its path, each camera's calibration from the folder
+        sizes: dict[str, set] = {}
+        for p in preds:
+            sizes.setdefault(p.camera, set()).add((p.width, p.height))
+        for camera, found in sizes.items():
+            if len(found) > 1:
+                raise InferError(f"the {camera} camera's images have {len(found)} different sizes "
+                                 f"({', '.join(f'{w}x{h}' for w, h in sorted(found))}): one calibration cannot fit them")
+        try:
+            cals = read_rig_calibrations(args.rig, {c: next(iter(found)) for c, found in sizes.items()})
+        except CalibrationError as exc:
+            raise InferError(str(exc)) from None
+        per_image = {p.image: cals[p.camera] for p in preds}
+    elif len(files) > 1:  # one calibration file per image, in the images' order (e.g. one frame's four cameras)
         if len(files) != len(preds) or args.dataset is not None:
             raise InferError(f"--calibration: {len(files)} files for {len(preds)} images (give one file for every "
                              "image, or one for all)")
@@ -288,6 +323,8 @@ def infer(args) -> list[Record]:
         root, records = image_records(args.images, args.camera, pixels)
         if args.frame:  # the images are one instant's cameras: one frame
             records = [replace(r, frame_id=0) for r in records]
+        elif args.rig is not None:   # a recorded drive: each image's camera and instant from its path
+            records = rig_records(args.images, records)
         detect, overlays = True, len(records)
 
     def rgb_of(rec: Record) -> np.ndarray:
@@ -358,6 +395,10 @@ def parser() -> argparse.ArgumentParser:
                    "own `calibration` needs no flag)")
     p.add_argument("--frame", action="store_true", help="the loose images are one instant's cameras (one frame): "
                    "each camera named by its calibration file, their footprints fused into top_views/frame_000000.png")
+    p.add_argument("--rig", type=Path, help="the loose images are a recorded drive of the rig's cameras: each image's "
+                   "camera from a camera-named folder (front/, left/, rear/, right/) or a WoodScape suffix (_FV, _MVL, "
+                   "_MVR, _RV), its instant from the number in its name; this folder holds one calibration JSON per "
+                   "camera. Each instant's footprints fused into top_views/frame_<n>.png")
     p.add_argument("--bev", type=Path, help="a bev stage output directory (its footprint prior; default: the run's)")
     p.add_argument("--roles", choices=("front", "network"), default="front",
                    help="each wheel's front/rear role: read from which way its vehicle faces (its footprint, else "
@@ -372,6 +413,9 @@ def main(argv: list[str] | None = None) -> int:
         p.error("give either IMAGE... or --dataset ROOT")
     if args.detect and args.dataset is None:
         p.error("--detect goes with --dataset (loose images are always detected)")
+    if args.rig is not None and (args.dataset is not None or args.frame or args.calibration):
+        p.error("--rig goes with loose images, without --frame or --calibration (it names each image's camera and "
+                "frame, and holds the calibrations)")
     if args.frame and args.dataset is not None:
         p.error("--frame goes with loose images (a dataset's records carry their frame_id)")
 
