@@ -33,8 +33,8 @@ operating point cuts them for the relations; average precision needs them all). 
 predictions with ``deepword score --gt ROOT --pred DIR/labels.jsonl [--detections DIR/detections.jsonl]``
 (the second adds the detector's AP and where it goes). On a dataset each pass over the images prints progress
 lines, the decoded images stay in memory between passes within ``--image-memory-mb`` (decoded again beyond it), and
-``--threads N`` processes fit the frames' footprints; none of it changes a prediction. Bad input exits with code 2 and a message naming the
-file (and line and field for a labels file), without a traceback.
+``--threads N`` processes fit the frames' footprints; none of it changes a prediction. Bad input exits with code 2
+and a message naming the file (and line and field for a labels file), without a traceback.
 """
 
 from __future__ import annotations
