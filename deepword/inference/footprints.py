@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
@@ -24,13 +25,13 @@ from deepword.footprint import (
     footprint_json,
     frame_footprints,
     implied_accuracy,
+    record_contacts,
     refuse_weighed,
-    wheel_contacts,
     write_footprints,
 )
 from deepword.format_3d import Box3D, check_calibration
 from deepword.top_view import LEGEND_PX, TITLE_PX, fused_top_view
-from deepword.word_format import CAMERAS, WHEEL, Record
+from deepword.word_format import CAMERAS, Record
 
 PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape statistics, heading table)
 BEV_REPORT = "bev.json"                 # the bev stage's numbers, with the fusion radius it used
@@ -78,12 +79,11 @@ class Frame:
     frame_id: int
     views: list[tuple[Record, Camera]]
     fused: list[tuple[Box3D, list[Estimate]]]
-    contacts: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]   # image -> (wheel boxes, contacts, valid)
+    contacts: dict[str, dict[int, np.ndarray]]   # image -> {wheel box_id: ground contact}, where one is found
 
     def wheel_contacts(self, image: str) -> dict[int, np.ndarray]:
         """{wheel box_id: ground contact (x, y)} of the image's wheels whose contact is found."""
-        wheels, xy, ok = self.contacts[image]
-        return {int(w[6]): xy[i] for i, w in enumerate(wheels) if ok[i]}
+        return self.contacts[image]
 
     def groups_of(self, image: str) -> list[tuple[Box3D, list[Estimate]]]:
         """The fused footprints one of whose estimates comes from ``image``."""
@@ -115,31 +115,17 @@ def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
         by_frame.setdefault(pred.frame_id, []).append((pred, cam))
     fit = partial(_fit_frame, prior=prior, fuse_radius_m=fuse_radius_m)
     workers = max(1, min(int(workers), len(by_frame) // FRAMES_PER_TASK))
-    if workers == 1:
-        fitted = map(fit, by_frame.values())
-    else:   # spawn: safe whatever threads the parent runs (onnxruntime's)
-        pool = mp.get_context("spawn").Pool(workers)
-        fitted = pool.imap(fit, by_frame.values(), chunksize=FRAMES_PER_TASK)
-    try:
-        fitted = fitted if progress is None else progress(fitted, len(by_frame))
-        estimated = dict(zip(by_frame, fitted, strict=True))
-    finally:
-        if workers > 1:
-            pool.close()
-            pool.join()
+    # spawn: safe whatever threads the parent runs (onnxruntime's)
+    with mp.get_context("spawn").Pool(workers) if workers > 1 else nullcontext() as pool:
+        fitted = (map(fit, by_frame.values()) if pool is None
+                  else pool.imap(fit, by_frame.values(), chunksize=FRAMES_PER_TASK))
+        estimated = dict(zip(by_frame, fitted if progress is None else progress(fitted, len(by_frame)), strict=True))
     if facing_val_accuracy is not None:
         weight = facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
         estimated = refuse_weighed(estimated, weight, fuse_radius_m, prior)
-    frames = {}
-    for frame_id, fviews in by_frame.items():
-        _, fused = estimated[frame_id]
-        contacts = {}
-        for pred, cam in fviews:
-            wheels = pred.boxes[pred.class_ids == WHEEL]
-            xy, ok = wheel_contacts(cam, wheels[:, :4], prior) if len(wheels) else (np.zeros((0, 2)), np.zeros(0, bool))
-            contacts[pred.image] = (wheels, xy, ok)
-        frames[frame_id] = Frame(frame_id, fviews, fused, contacts)
-    return frames
+    return {frame_id: Frame(frame_id, fviews, estimated[frame_id][1],
+                            {pred.image: record_contacts(pred, cam, prior) for pred, cam in fviews})
+            for frame_id, fviews in by_frame.items()}
 
 
 def _fit_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, fuse_radius_m: float):
@@ -159,8 +145,8 @@ def with_objects_3d(pred: Record, frame: Frame) -> Record:
 
 
 def image_contacts(frame: Frame, image: str) -> np.ndarray:
-    _, xy, ok = frame.contacts[image]
-    return xy[ok] if len(xy) else np.zeros((0, 2))
+    """(N, 2) the ground contacts of the image's wheels whose contact is found."""
+    return np.array(list(frame.contacts[image].values())).reshape(-1, 2)
 
 
 def facing_check(frames: dict[int, Frame], val_accuracy: float) -> str | None:
@@ -242,9 +228,7 @@ def rig_view_of(path: Path) -> tuple[str, int] | None:
     head, _, suffix = stem.rpartition("_")
     if head and suffix.upper() in WOODSCAPE_CAMERAS:
         stem, camera = head, WOODSCAPE_CAMERAS[suffix.upper()]
-    for part in reversed(path.parent.parts):
-        if camera is None and part in CAMERAS:
-            camera = part
+    camera = camera or next((part for part in reversed(path.parent.parts) if part in CAMERAS), None)
     if camera is None or not stem.isdigit():
         return None
     return camera, int(stem)

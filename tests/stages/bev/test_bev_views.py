@@ -40,7 +40,8 @@ def _frame(recs, views) -> Frame:
     """The frame of ``recs`` as ``deepword infer`` holds it: their cameras, the fused estimates, the contacts."""
     return Frame(0, [(r, views[r.image][0]) for r in recs],
                  fuse_frame([e for r in recs for e in views[r.image][1]], 1.5, PRIOR),
-                 {r.image: (r.boxes[r.class_ids == 1], views[r.image][2], np.ones(2, bool)) for r in recs})
+                 {r.image: dict(zip(r.boxes[r.class_ids == 1][:, 6].astype(int).tolist(), views[r.image][2], strict=True))
+                  for r in recs})
 
 
 def test_a_panel_has_truth_the_cameras_colours_and_a_legend():
