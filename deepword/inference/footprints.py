@@ -6,8 +6,6 @@ WoodScape JSON file."""
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
@@ -30,6 +28,7 @@ from deepword.footprint import (
     write_footprints,
 )
 from deepword.format_3d import Box3D, check_calibration
+from deepword.frame_processes import map_frames
 from deepword.top_view import LEGEND_PX, TITLE_PX, fused_top_view
 from deepword.word_format import CAMERAS, Record
 
@@ -37,9 +36,6 @@ PRIOR_FILE = "footprint_prior.json"     # the bev stage's fitted prior (shape st
 BEV_REPORT = "bev.json"                 # the bev stage's numbers, with the fusion radius it used
 FOOTPRINTS_FILE = "footprints.jsonl"    # infer's fused footprints per frame, as the bev stage's footprints/*.jsonl
 DEFAULT_FUSE_RADIUS_M = 1.5             # conf/bev/default.yaml's fuse_radius_m, for a bev output without bev.json's
-# A spawned process costs 2-3 s before it fits anything (importing NumPy, OpenCV and the project), about what a few
-# frames take: frames go to worker processes only where each gets at least this many, in chunks of this many
-FRAMES_PER_TASK = 8
 
 
 class CalibrationError(ValueError):
@@ -108,18 +104,14 @@ def estimate_frames(views: list[tuple[Record, Camera]], prior: FootprintPrior,
     cameras, headings by the roles' votes and the prior's heading table). With ``facing_val_accuracy`` (the facing
     network's, 0-1) the facing votes are weighed by ``facing_trust`` over all the frames, as the bev stage weighs
     them over a test set. ``progress(items, total)``: wraps the loop over the frames (e.g. ``deepword.progress``'s
-    ``progress_lines``). ``workers`` > 1: up to that many spawned processes fit the frames (a frame's footprints
-    depend on that frame alone, so the result is the same for any number)."""
+    ``progress_lines``). ``workers`` > 1: up to that many spawned processes fit the frames
+    (``deepword.frame_processes``: the result is the same for any number)."""
     by_frame: dict[int, list] = {}
     for pred, cam in views:
         by_frame.setdefault(pred.frame_id, []).append((pred, cam))
-    fit = partial(_fit_frame, prior=prior, fuse_radius_m=fuse_radius_m)
-    workers = max(1, min(int(workers), len(by_frame) // FRAMES_PER_TASK))
-    # spawn: safe whatever threads the parent runs (onnxruntime's)
-    with mp.get_context("spawn").Pool(workers) if workers > 1 else nullcontext() as pool:
-        fitted = (map(fit, by_frame.values()) if pool is None
-                  else pool.imap(fit, by_frame.values(), chunksize=FRAMES_PER_TASK))
-        estimated = dict(zip(by_frame, fitted if progress is None else progress(fitted, len(by_frame)), strict=True))
+    fitted = map_frames(partial(_fit_frame, prior=prior, fuse_radius_m=fuse_radius_m), list(by_frame.values()),
+                        workers, progress)
+    estimated = dict(zip(by_frame, fitted, strict=True))
     if facing_val_accuracy is not None:
         weight = facing_trust([g for _, fused in estimated.values() for g in fused], facing_val_accuracy)
         estimated = refuse_weighed(estimated, weight, fuse_radius_m, prior)

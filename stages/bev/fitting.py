@@ -1,18 +1,15 @@
 """The bev stage's footprints: every (box source, method)'s fused footprints on the test frames
 (``deepword.footprint.frame_footprints``, what ``deepword infer`` gives the same frame), the frames shared among
-worker processes.
+worker processes (``deepword.frame_processes``).
 
-Fitting is the stage's cost (a one-wheel or no-wheel vehicle's silhouette search: thousands of projected vehicles
-per fit) and plain NumPy on one core, so ``bev.workers`` processes each take every ``workers``-th frame and fit it
-for every (box source, method) within one ``shared_fits`` (the methods of a box source share their boxes, and most
-vehicles are fitted alike by several). A frame's footprints depend on that frame alone, so the numbers are the same
-for any number of workers."""
+Each frame is fitted for every (box source, method) within one ``shared_fits``: the methods of a box source share
+their boxes, and most vehicles are fitted alike by several."""
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 from collections import defaultdict
+from functools import partial
 
 from deepword.footprint import (
     FootprintPrior,
@@ -21,12 +18,9 @@ from deepword.footprint import (
     refuse_weighed,
     shared_fits,
 )
+from deepword.frame_processes import frame_processes, map_frames
+from deepword.progress import progress_lines
 from deepword.word_format import Record
-
-# A spawned process costs 2-3 s before it fits anything (importing NumPy, OpenCV and the project), about what it
-# takes to fit a few frames: fewer frames than this a process are fitted in the calling one (a smoke run's 3-4 test
-# frames: 6 s in two processes, under 3 s in one).
-MIN_FRAMES_PER_PROCESS = 8
 
 # (box source, method) -> ({frame: [(record, camera), ...]}, use_relations)
 Jobs = dict[tuple[str, str], tuple[dict[int, list], bool]]
@@ -48,36 +42,31 @@ def facing_lead(boxes: str, methods: list[str]) -> tuple[str, str]:
     return boxes, "deepword" if "deepword" in methods else methods[0]
 
 
-def _fit_frames(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float) -> dict:
-    """{job: {frame: (its estimates, their fused footprints)}} for ``frames``, every job's fits shared
-    (``shared_fits``)."""
+def _fit_frame(frame_jobs: dict, prior: FootprintPrior, radius_m: float) -> dict:
+    """{job: (its estimates, their fused footprints)} of one frame (``frame_jobs``: {job: (the frame's views,
+    use_relations)}), the jobs' fits shared (``shared_fits``)."""
     with shared_fits():
-        return {key: {f: frame_footprints(views.get(f, []), prior, radius_m, use_relations) for f in frames}
-                for key, (views, use_relations) in jobs.items()}
+        return {key: frame_footprints(views, prior, radius_m, use_relations)
+                for key, (views, use_relations) in frame_jobs.items()}
 
 
 def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radius_m: float,
-                     workers: int = 1, min_frames_per_process: int = MIN_FRAMES_PER_PROCESS,
-                     facing_val_accuracy: float | None = None
+                     workers: int = 1, frames_per_task: int | None = None,
+                     facing_val_accuracy: float | None = None, desc: str = "bev: footprints"
                      ) -> tuple[dict[tuple[str, str], dict[int, list]], dict[str, float]]:
     """{job: {frame: [(footprint, its estimates), ...]}} for every job and every frame of ``frames`` (a frame none
     of a job's views fall in gets none), keyed in the order of ``frames``, and {box source: the weight its facing votes
-    were given}; ``workers`` > 1: up to that many spawned processes, each every ``workers``-th frame, as long as each
-    gets ``min_frames_per_process`` frames. With ``facing_val_accuracy`` (the facing network's, 0-1) each box source's
-    votes are weighed by ``facing_trust`` of its ``facing_lead`` job's footprints, and where that is under 1 its
-    methods' frames are fused again with the weighed votes."""
+    were given}; ``workers`` > 1: up to that many spawned processes, ``frames_per_task`` frames a task
+    (``deepword.frame_processes.map_frames``; its ``FRAMES_PER_TASK`` by default). With ``facing_val_accuracy`` (the
+    facing network's, 0-1) each box source's votes are weighed by ``facing_trust`` of its ``facing_lead`` job's
+    footprints, and where that is under 1 its methods' frames are fused again with the weighed votes. ``desc`` leads
+    the progress lines."""
     started = time.perf_counter()
     order = sorted(frames)
-    workers = max(1, min(int(workers), len(order) // max(1, int(min_frames_per_process))))
-    shards = [order[i::workers] for i in range(workers)]
-    if workers == 1:
-        parts = [_fit_frames(jobs, order, prior, radius_m)]
-    else:
-        args = [({key: ({f: views[f] for f in shard if f in views}, use) for key, (views, use) in jobs.items()},
-                 shard, prior, radius_m) for shard in shards]
-        with mp.get_context("spawn").Pool(workers) as pool:   # spawn: safe whatever threads the parent runs
-            parts = pool.starmap(_fit_frames, args)
-    out = {key: {f: part[key][f] for part in parts for f in part[key]} for key in jobs}
+    fitted = map_frames(partial(_fit_frame, prior=prior, radius_m=radius_m),
+                        [{key: (views.get(f, []), use) for key, (views, use) in jobs.items()} for f in order],
+                        workers, partial(progress_lines, desc=desc, unit="frame"), frames_per_task)
+    out = {key: {f: part[key] for f, part in zip(order, fitted, strict=True)} for key in jobs}
     trust = {}
     if facing_val_accuracy is not None:
         for boxes in dict.fromkeys(b for b, _ in jobs):
@@ -88,7 +77,8 @@ def fused_footprints(jobs: Jobs, frames: list[int], prior: FootprintPrior, radiu
             trust[boxes] = facing_trust([g for _, fused in out[lead].values() for g in fused], facing_val_accuracy)
             for key in voted:
                 out[key] = refuse_weighed(out[key], trust[boxes], radius_m, prior)
-    print(f"bev: footprints of {len(order)} frames x {len(jobs)} (boxes, method) in "
-          f"{time.perf_counter() - started:.0f} s ({workers} process{'es' if workers > 1 else ''})"
+    processes = frame_processes(workers, len(order), frames_per_task)
+    print(f"{desc} of {len(order)} frames x {len(jobs)} (boxes, method) in "
+          f"{time.perf_counter() - started:.0f} s ({processes} process{'es' if processes > 1 else ''})"
           + "".join(f"; {b} boxes' facing votes x {w:.2f}" for b, w in trust.items() if w < 1.0), flush=True)
     return {key: {f: fused[f][1] for f in frames} for key, fused in out.items()}, trust

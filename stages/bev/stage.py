@@ -264,7 +264,8 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     # the facing network's votes weighed by how far its cameras agree on these frames (deepword.footprint.facing_trust)
     fused_by, trust = fused_footprints(jobs, list({r.frame_id for r in test}), prior, float(bcfg.fuse_radius_m),
                                        int(bcfg.workers or os.cpu_count() or 1),
-                                       facing_val_accuracy=facing_net.accuracy if facing_net is not None else None)
+                                       facing_val_accuracy=facing_net.accuracy if facing_net is not None else None,
+                                       desc=f"bev: footprints{' (held-out domain)' if prefix else ''}")
     for boxes, read in reads.items():
         methods = list(read)
         results[boxes] = {}

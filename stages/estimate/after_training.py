@@ -305,7 +305,7 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
     shared among ``bev.workers`` processes (one a frame's fits, at most one per 8 frames), timed here as no-wheel
     fits; the facing network on each vehicle box; scoring each frame for every (box source, method) and the
     top-view figures, after fitting the footprint prior on train."""
-    from stages.bev.fitting import MIN_FRAMES_PER_PROCESS
+    from deepword.frame_processes import frame_processes
 
     if split_images(cfg, "test") is None:
         return None
@@ -323,7 +323,7 @@ def bev(cfg: DictConfig, context=None) -> dict | None:
     fits, most = 0.0, 1
     for n in domains:   # each domain's frames shared among the processes separately
         frames = math.ceil(n / max(1, n_cameras))
-        processes = max(1, min(workers, frames // MIN_FRAMES_PER_PROCESS))
+        processes = frame_processes(workers, frames)
         most = max(most, processes)
         fits += n * len(sources) * FITS_PER_IMAGE * fit_s / processes + (PROCESS_START_S if processes > 1 else 0.0)
     jobs = len(sources) * (len(bc.methods) + 1)   # + box_bottom

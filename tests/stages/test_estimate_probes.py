@@ -169,7 +169,7 @@ def test_the_stages_after_training_count_the_calls_they_make(monkeypatch):
     assert relation_only["seconds"] == pytest.approx(without["seconds"] - 2 * 0.5)   # no detector export either
     assert "detector" not in relation_only["note"] and "relation 1.00 ms" in relation_only["note"]
 
-    # bev: the fits shared among processes, at most one per MIN_FRAMES_PER_PROCESS frames
+    # bev: the fits shared among processes, at most one per FRAMES_PER_TASK frames
     monkeypatch.setattr(after_training, "_no_wheel_fit_seconds", lambda cfg: 0.5)
     monkeypatch.setattr(after_training, "decode_seconds", lambda cfg: 0.003)
     big = ("data.frames=200", "shift.data.frames=100")

@@ -93,7 +93,7 @@ def test_footprints_are_the_same_for_any_number_of_worker_processes(tmp_path, ca
     frames = [2, 0, 1, 7]   # 7: a frame no view falls in
     one, trust = fused_footprints(jobs, frames, PRIOR, 1.5, workers=1)
     assert trust == {}   # no facing network: no weights
-    two, _ = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2, min_frames_per_process=1)
+    two, _ = fused_footprints(jobs, frames, PRIOR, 1.5, workers=2, frames_per_task=1)
     assert "(2 processes)" in capsys.readouterr().out
     assert list(one) == list(jobs) and all(list(fused) == frames for fused in one.values())
     assert sum(len(f) for f in one[("gt", "deepword")].values()) >= 5

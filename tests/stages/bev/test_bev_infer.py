@@ -148,13 +148,14 @@ def test_infer_names_each_wheels_role_from_its_vehicles_footprint_and_the_bev_st
 def test_footprints_fitted_in_worker_processes_are_the_ones_fitted_in_one(bev_run, monkeypatch):
     """``deepword infer --threads N`` fits a dataset's frames in N processes; a frame's footprints depend on that frame
     alone, so they are the same."""
+    from deepword import frame_processes
     from deepword.format_3d import record_camera
     from deepword.inference import footprints
 
     base, test, _, bev, _ = bev_run
     prior = footprints.load_prior(bev)
     views = [(r, record_camera(r, "the test")) for r in test]
-    monkeypatch.setattr(footprints, "FRAMES_PER_TASK", 1)   # the fixture's two test frames: one a process
+    monkeypatch.setattr(frame_processes, "FRAMES_PER_TASK", 1)   # the fixture's two test frames: one a process
     seen = []
     one = footprints.estimate_frames(views, prior, workers=1)
     two = footprints.estimate_frames(views, prior, workers=2,
