@@ -1,9 +1,10 @@
-"""Stage ``facing``: the facing network (``model.FacingNet``) trained on the vehicle crops of the train split whose
-records carry 3D truth, chosen by val accuracy (docs/bev.md, "Front and back").
+"""Stage ``facing``: the facing network (``model.FacingNet``) trained on the vehicle crops of the train split that
+have a facing target (``targets.facing_targets``: the 3D truth where a record has it, else a labelled couple's
+rear and front roles), chosen by val accuracy (docs/bev.md, "Front and back").
 
-What it writes: ``facing.json`` (its input settings, val accuracy, curves; ``trained: false`` where the data has no
-3D truth to learn from, a team's 2D labels: then no network and no vectors), ``facing.pt`` (the weights, when
-trained), ``artifacts/facing_curves.png``. The export stage ships it in the bundle as ``facing.onnx``; the bev stage
+What it writes: ``facing.json`` (its input settings, val accuracy, where its targets came from, curves;
+``trained: false`` where train or val has no target to learn from, e.g. 2D labels without roles: then no network and
+no vectors), ``facing.pt`` (the weights, when trained), ``artifacts/facing_curves.png``. The export stage ships it in the bundle as ``facing.onnx``; the bev stage
 and ``deepword infer --calibration`` read each vehicle's vector from there.
 
 Each train vehicle is seen as labelled and once more with its box sides jittered by ``facing.train.box_jitter`` x its
@@ -16,6 +17,7 @@ import json
 import logging
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,7 @@ from deepword.facing import box_facings
 from deepword.facing_crop import to_crop
 from deepword.relation_graph import crop_objects
 from deepword.word_format import load_image, open_dataset
+from stages.facing.targets import count_targets, facing_targets, target_settings
 from stages.training.lightning_logs import format_duration
 
 log = logging.getLogger(__name__)
@@ -33,17 +36,18 @@ WEIGHTS_FILE = "facing.pt"
 
 
 def split_crops(records, root, size: int, margin: float, jitter: float, rng: np.random.Generator | None,
-                limit: int | None = None, pad: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                limit: int | None = None, pad: int = 0, targets_of=box_facings) -> tuple[np.ndarray, np.ndarray]:
     """Crops (M, 3, size + 2 pad, size + 2 pad) uint8 and crop-pixel unit targets (M, 2) of every vehicle with a
-    facing target (``deepword.facing.box_facings``) in ``records``; with ``rng`` each also once more with its box
-    jittered. With ``pad`` the crop reaches ``pad`` pixels further on each side at the same scale, so that its central
+    facing target (``targets_of(record)``: (N, 2) per box, NaN for none; ``deepword.facing.box_facings``, the 3D truth,
+    by default) in ``records``; with ``rng`` each also once more with its box jittered. With ``pad`` the crop reaches
+    ``pad`` pixels further on each side at the same scale, so that its central
     ``size`` window is the crop a margin of ``margin`` gives (``augment`` moves that window); a direction in the crop
     does not depend on the margin (the box grows alike in width and height)."""
     if pad:
         margin, size = ((1 + 2 * margin) * (size + 2 * pad) / size - 1) / 2, size + 2 * pad
     crops, targets = [], []
     for rec in records[:limit] if limit else records:
-        facings = box_facings(rec)
+        facings = targets_of(rec)
         rows = np.flatnonzero(np.isfinite(facings).all(axis=1))
         if len(rows) == 0:
             continue
@@ -81,15 +85,23 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     if shift < 0:
         raise ValueError(f"facing.train.shift: a share of the crop side, 0 or more (0: no shift), got {shift}")
     pad = round(shift * size)
-    train_x, train_y = split_crops(ds.subset("train"), ds.root, size, margin, float(tc.box_jitter), rng,
-                                   tc.get("limit_train_images"), pad)
-    val_x, val_y = split_crops(ds.subset("val"), ds.root, size, margin, 0.0, None)
+    targets = target_settings(fc)
+    train_records, val_records = ds.subset("train"), ds.subset("val")
+    limit = tc.get("limit_train_images")
+    train_x, train_y = split_crops(train_records, ds.root, size, margin, float(tc.box_jitter), rng, limit, pad,
+                                   partial(facing_targets, **targets))
+    val_x, val_y = split_crops(val_records, ds.root, size, margin, 0.0, None,
+                               targets_of=partial(facing_targets, **targets))
+    # vehicles with a target by where it came from, each image once (a composed train split repeats some)
+    sources = {split: count_targets(list({r.image: r for r in recs}.values()), **targets)
+               for split, recs in (("train", train_records[:limit] if limit else train_records),
+                                   ("val", val_records))}
     convs = fc.get("convs")   # absent (older configs): FacingNet's two a block
     settings = {"input_size": size, "margin": margin, "widths": list(fc.widths), "hidden": int(fc.hidden),
                 "convs": None if convs is None else [int(n) for n in convs]}
     if len(train_x) == 0 or len(val_x) == 0:
-        reason = (f"no vehicles with 3D truth (calibration and objects_3d) to learn from: {len(train_x)} train, "
-                  f"{len(val_x)} val crops")
+        reason = (f"no vehicles with a facing target (3D truth: calibration and objects_3d; or a couple labelled rear "
+                  f"and front) to learn from: {len(train_x)} train, {len(val_x)} val crops")
         log.warning("facing: %s; no facing network (the footprints' headings come from the roles and the prior)",
                     reason)
         (out_dir / CONFIG_FILE).write_text(json.dumps({**settings, "trained": False, "reason": reason}, indent=1))
@@ -124,7 +136,9 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
             total += loss.item() * len(idx)
         acc = 100.0 * float(np.mean(agreement(net, val_x, val_y, device) > 0))
         history.append({"epoch": epoch, "train/loss": total / len(xs), "val/facing_acc": acc})
-        if acc > best[0]:
+        # a tie goes to the later epoch: on a val split of a few dozen vehicles (a team's own) the accuracy ties
+        # often, and the one-cycle schedule's later epochs are the better trained
+        if acc >= best[0]:
             best = (acc, epoch, {k: v.detach().cpu().clone() for k, v in net.state_dict().items()})
         left = (time.perf_counter() - started) / (epoch + 1) * (epochs - epoch - 1)
         print(f"facing epoch {epoch + 1}/{epochs}: train/loss={total / len(xs):.4g} val/facing_acc={acc:.2f} "
@@ -137,12 +151,15 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     (out_dir / CONFIG_FILE).write_text(json.dumps({
         **settings, "trained": True, "val_acc": acc, "logit_scale": scale, "val_nll": nll, "best_epoch": best_epoch,
         "seed": seed, "bf16": bf16, "channels_last": channels_last, "train_crops": len(train_x),
-        "val_vehicles": len(val_x), "curves": history},
+        "val_vehicles": len(val_x), "targets": {**targets, "roles_only": list(targets["roles_only"])},
+        "target_sources": sources, "curves": history},
         indent=1))
     plot_curves(history, out_dir / "artifacts" / "facing_curves.png")
     return {"facing.trained": 1.0, "facing.val.acc": acc, "facing.val.vehicles": float(len(val_x)),
             "facing.val.logit_scale": scale, "facing.val.nll": nll,
             "facing.train.crops": float(len(train_x)), "facing.best_epoch": float(best_epoch),
+            **{f"facing.{split}.targets_{source}": float(n) for split, counts in sources.items()
+               for source, n in counts.items()},
             "facing.epochs": float(epochs), "facing.params": float(sum(p.numel() for p in net.parameters())),
             "facing.bf16": float(bf16), "facing.channels_last": float(channels_last),
             "facing.train.seconds": time.perf_counter() - started}

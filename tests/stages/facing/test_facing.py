@@ -1,7 +1,8 @@
 """The facing network: its crops and targets from the 3D truth, the crop <-> image vectors, the stage on renders of
 the project's own generator (a few frames, two epochs), its export checked against PyTorch, the runtime that writes
 each vehicle's vector and val accuracy into records (the bev stage: each image decoded once for all its box
-sources), and a dataset without 3D truth (no network, no vectors)."""
+sources), a dataset without 3D truth that learns from its couples' labelled roles, and one without either (no network, no
+vectors)."""
 
 from __future__ import annotations
 
@@ -175,6 +176,15 @@ def test_the_stage_trains_chooses_on_val_and_is_reproducible(rendered, trained, 
     assert torch.load(tmp_path / WEIGHTS_FILE)["head.2.weight"].equal(torch.load(out / WEIGHTS_FILE)["head.2.weight"])
 
 
+def test_a_tie_on_val_keeps_the_later_epoch(rendered, tmp_path, monkeypatch):
+    import stages.facing.stage as facing_stage
+
+    accuracies = iter([[1.0, -1.0], [1.0, 1.0], [1.0, -1.0], [1.0, 1.0]])   # 50 %, 100 %, 50 %, 100 %
+    monkeypatch.setattr(facing_stage, "agreement", lambda net, x, y, device: np.array(next(accuracies, [1.0, 1.0])))
+    run_facing(_stage_cfg(train={**FACING_CFG["train"], "epochs": 4}), {"data": rendered}, tmp_path)
+    assert json.loads((tmp_path / CONFIG_FILE).read_text())["best_epoch"] == 3
+
+
 def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rendered, trained, tmp_path, monkeypatch):
     from deepword.inference.runtime import BUNDLE_FILE
     from deepword.word_format import load_image, open_dataset
@@ -221,21 +231,99 @@ def test_exported_it_writes_each_vehicles_vector_and_accuracy_into_records(rende
     assert OnnxFacing.from_bundle(tmp_path) is None
 
 
-def test_without_3d_truth_there_is_no_network_and_nothing_is_shipped(rendered, tmp_path):
+def _relabelled(rendered: Path, root: Path, change) -> Path:
+    """A copy of the rendered dataset with ``change(record)`` applied to every record (images copied)."""
     from deepword.word_format import read_records
+
+    records = [change(r) for r in read_records(rendered / "labels.jsonl")]
+    for r in records:
+        (root / r.image).parent.mkdir(parents=True, exist_ok=True)
+        (root / r.image).write_bytes((rendered / r.image).read_bytes())
+    write_records(root / "labels.jsonl", records)
+    write_dataset_index(root, root, json.loads((rendered / "splits.json").read_text()))
+    return root
+
+
+def _labelled_in_2d(rec):
+    return replace(rec, extra={})
+
+
+def test_without_3d_truth_or_roles_there_is_no_network_and_nothing_is_shipped(rendered, tmp_path):
     from stages.facing.stage import load_network
 
-    flat_root = tmp_path / "flat"
-    records = [replace(r, extra={}) for r in read_records(rendered / "labels.jsonl")]
-    for r in records:
-        (flat_root / r.image).parent.mkdir(parents=True, exist_ok=True)
-        (flat_root / r.image).write_bytes((rendered / r.image).read_bytes())
-    write_records(flat_root / "labels.jsonl", records)
-    splits = json.loads((rendered / "splits.json").read_text())
-    write_dataset_index(flat_root, flat_root, splits)
+    flat_root = _relabelled(rendered, tmp_path / "flat",
+                            lambda r: replace(r, extra={}, relations=[(v, w, None) for v, w, _ in r.relations]))
     out = tmp_path / "facing"
     out.mkdir()
     assert run_facing(_stage_cfg(), {"data": flat_root}, out) == {"facing.trained": 0.0}
     meta = json.loads((out / CONFIG_FILE).read_text())
-    assert not meta["trained"] and "3D truth" in meta["reason"] and not (out / WEIGHTS_FILE).exists()
+    assert not meta["trained"] and "3D truth" in meta["reason"] and "rear" in meta["reason"]
+    assert not (out / WEIGHTS_FILE).exists()
     assert load_network(out)[0] is None          # what the export stage checks: nothing to ship
+    # the same with the roles, but told not to learn from them
+    again = tmp_path / "again"
+    again.mkdir()
+    roles_kept = _relabelled(rendered, tmp_path / "roles", _labelled_in_2d)
+    no_roles = {"objects_3d": True, "roles": False, "roles_only": []}
+    assert run_facing(_stage_cfg(targets=no_roles), {"data": roles_kept}, again) == {"facing.trained": 0.0}
+
+
+def test_a_couple_labelled_rear_and_front_points_from_its_rear_wheel_to_its_front_one():
+    from deepword.word_format import Record
+    from stages.facing.targets import role_facings
+
+    boxes = np.array([[0, 0, 100, 50, 1, 0, 0], [10, 40, 20, 50, 1, 1, 1], [80, 38, 90, 48, 1, 1, 2],
+                      [200, 0, 260, 40, 1, 0, 3], [210, 30, 220, 40, 1, 1, 4]], dtype=float)
+
+    def rec(relations, pairs):
+        return Record("a.png", 0, "front", 320, 240, boxes, relations, pairs)
+
+    both = rec([(0, 1, "rear"), (0, 2, "front"), (3, 4, "front")], [(1, 2)])
+    got = role_facings(both)
+    assert got[0] == pytest.approx(np.array([70.0, -2.0]) / np.hypot(70.0, 2.0))
+    assert np.isnan(got[1:]).all()                                  # wheels, and a vehicle with one wheel
+    swapped = role_facings(rec([(0, 1, "front"), (0, 2, "rear")], [(1, 2)]))
+    assert swapped[0] == pytest.approx(-got[0])
+    assert np.isnan(role_facings(rec([(0, 1, "rear"), (0, 2, "front")], [])) ).all()     # not a couple
+    assert np.isnan(role_facings(rec([(0, 1, None), (0, 2, None)], [(1, 2)]))).all()    # no roles labelled
+
+
+def test_role_targets_point_the_way_the_3d_truth_does(rendered):
+    from deepword.word_format import read_records
+    from stages.facing.targets import facing_targets, role_facings
+
+    records = read_records(rendered / "labels.jsonl")
+    dots = []
+    for r in records:
+        truth, roles = box_facings(r), role_facings(r)
+        both = np.isfinite(truth).all(axis=1) & np.isfinite(roles).all(axis=1)
+        dots += list((truth[both] * roles[both]).sum(axis=1))
+        assert np.array_equal(facing_targets(r), truth, equal_nan=True)             # 3D truth first
+        flat = _labelled_in_2d(r)
+        assert np.array_equal(facing_targets(flat), roles, equal_nan=True)          # else the roles
+        pool = replace(r, extra={**r.extra, "data_source": "pool"})
+        assert np.array_equal(facing_targets(pool, roles_only=["pool"]), roles, equal_nan=True)
+        assert np.array_equal(facing_targets(pool, roles_only=["yours"]), truth, equal_nan=True)
+        assert np.isnan(facing_targets(flat, roles=False)).all()
+    assert len(dots) >= 5 and min(dots) > 0.5
+
+
+def test_without_3d_truth_the_couples_roles_train_it(rendered, tmp_path):
+    flat_root = _relabelled(rendered, tmp_path / "flat", _labelled_in_2d)
+    out = tmp_path / "facing"
+    out.mkdir()
+    metrics = run_facing(_stage_cfg(), {"data": flat_root}, out)
+    meta = json.loads((out / CONFIG_FILE).read_text())
+    assert metrics["facing.trained"] == 1.0 and meta["trained"] and (out / WEIGHTS_FILE).is_file()
+    assert meta["target_sources"]["train"]["objects_3d"] == 0 < meta["target_sources"]["train"]["roles"]
+    assert metrics["facing.train.targets_roles"] == meta["target_sources"]["train"]["roles"]
+    assert metrics["facing.val.vehicles"] == meta["target_sources"]["val"]["roles"]
+
+
+def test_learning_from_nothing_is_refused_before_any_crop_is_cut(rendered, tmp_path, monkeypatch):
+    import stages.facing.stage as facing_stage
+
+    monkeypatch.setattr(facing_stage, "split_crops", lambda *a, **k: pytest.fail("crops cut"))
+    nothing = {"objects_3d": False, "roles": False, "roles_only": []}
+    with pytest.raises(ValueError, match=r"facing.targets: objects_3d and roles are both false"):
+        run_facing(_stage_cfg(targets=nothing), {"data": rendered}, tmp_path)
