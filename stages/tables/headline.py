@@ -17,9 +17,10 @@ HEADLINE_BEGIN = "<!-- headline by make compare: begin -->"
 HEADLINE_END = "<!-- headline by make compare: end -->"
 ADAPT_IMAGES = 50   # the adapt sweep's point the headline quotes: a small labelling effort
 # The recipe docs/adapt.md recommends ("Which recipe"), whose point at ADAPT_IMAGES the headline quotes, and its row.
-# finetune's points are those started from the headline's run; mixed trains from scratch and starts from no run.
-ADAPT_RECIPE = "mixed"
+# The fine-tunings' points are those started from the headline's run; mixed trains from scratch and starts from no run.
+ADAPT_RECIPE = "finetune_mixed"
 ADAPT_ROWS = {"finetune": "held-out domain after fine-tuning on {n} of its images",
+              "finetune_mixed": "held-out domain, the default run trained further on SynWORD and {n} of its images",
               "mixed": "held-out domain, trained on SynWORD and {n} of its images together"}
 
 

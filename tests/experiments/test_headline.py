@@ -97,16 +97,31 @@ def _draws(prefix: str, recipe: str, base: str) -> list[RunRecord]:
 def test_the_headline_quotes_the_recommended_recipe_at_50_images_as_the_mean_of_its_draws():
     from stages.tables.headline import ADAPT_RECIPE
 
-    assert ADAPT_RECIPE == "mixed"   # docs/adapt.md, "Which recipe"
-    # mixed trains from scratch: its draws count whichever default run they name as N=0; a newer fine-tuning of the
-    # headline's run is another recipe and is not quoted
-    runs = [_adapt_run("ft", "finetune", 0, "base", _metrics(10.0), start=7), *_draws("mx", "mixed", "older"),
+    assert ADAPT_RECIPE == "finetune_mixed"   # docs/adapt.md, "Which recipe"
+    # its draws started from the headline's run; a newer run of another recipe, and the same recipe started from
+    # another default run, are not quoted
+    runs = [_adapt_run("mx", "mixed", 0, "base", _metrics(10.0), start=8),
+            _adapt_run("other", "finetune_mixed", 0, "older", _metrics(20.0), start=7),
+            *_draws("fm", "finetune_mixed", "base"),
             RunRecord("base", "default", 1, _default_params(), _metrics(80.0), QUICK)]
     table, sources = headline_table(runs, "adapt")
-    assert sources["headline"] == "base" and sources["headline.adapt"] == "mx0,mx1"
+    assert sources["headline"] == "base" and sources["headline.adapt"] == "fm0,fm1"
     row = table.rows[-1]
-    assert row[0] == "held-out domain, trained on SynWORD and 50 of its images together (mean of 2 draws)"
+    assert row[0] == "held-out domain, the default run trained further on SynWORD and 50 of its images (mean of 2 draws)"
     assert row[1:] == [65.0, 66.0, 67.0, 30.5]   # shift e2e of draws 60/70 (+i), image_acc 30/31
+
+
+def test_a_mixed_headline_quotes_its_draws_whichever_default_run_they_name(monkeypatch):
+    from stages.tables import headline
+
+    monkeypatch.setattr(headline, "ADAPT_RECIPE", "mixed")
+    # mixed trains from scratch: its draws count whichever default run they name as N=0
+    runs = [_adapt_run("ft", "finetune", 0, "base", _metrics(10.0), start=7), *_draws("mx", "mixed", "older"),
+            RunRecord("base", "default", 1, _default_params(), _metrics(80.0), QUICK)]
+    table, sources = headline.headline_table(runs, "adapt")
+    assert sources["headline"] == "base" and sources["headline.adapt"] == "mx0,mx1"
+    assert table.rows[-1][0] == "held-out domain, trained on SynWORD and 50 of its images together (mean of 2 draws)"
+    assert table.rows[-1][1:] == [65.0, 66.0, 67.0, 30.5]
 
 
 def test_a_fine_tuning_headline_quotes_the_runs_started_from_the_headlines_run_alone(monkeypatch):
@@ -145,7 +160,7 @@ def test_a_store_without_adapt_runs_keeps_the_readmes_adapt_row(tmp_path):
     from stages.tables.headline import keep_adapt_row
 
     base = RunRecord("base", "default", 1, _default_params(), _metrics(80.0), QUICK)
-    with_sweep, _ = headline_table([*_draws("mix", "mixed", "none"), base], "adapt")
+    with_sweep, _ = headline_table([*_draws("fm", "finetune_mixed", "base"), base], "adapt")
     page = tmp_path / "README.md"
     page.write_text(f"# x\n{HEADLINE_BEGIN}\nstale\n{HEADLINE_END}\n")
     write_headline(page, with_sweep)
