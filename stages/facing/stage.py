@@ -4,8 +4,9 @@ rear and front roles), chosen by val accuracy (docs/bev.md, "Front and back").
 
 What it writes: ``facing.json`` (its input settings, val accuracy, where its targets came from, curves;
 ``trained: false`` where train or val has no target to learn from, e.g. 2D labels without roles: then no network and
-no vectors), ``facing.pt`` (the weights, when trained), ``artifacts/facing_curves.png``. The export stage ships it in the bundle as ``facing.onnx``; the bev stage
-and ``deepword infer --calibration`` read each vehicle's vector from there.
+no vectors), ``facing.pt`` (the weights, when trained), ``artifacts/facing_curves.png``. The export stage ships it in
+the bundle as ``facing.onnx``; the bev stage and ``deepword infer --calibration`` read each vehicle's vector from
+there.
 
 Each train vehicle is seen as labelled and once more with its box sides jittered by ``facing.train.box_jitter`` x its
 size (a detector's box); training crops are mirrored with probability one half (the vector's x negated) and their
@@ -40,9 +41,9 @@ def split_crops(records, root, size: int, margin: float, jitter: float, rng: np.
     """Crops (M, 3, size + 2 pad, size + 2 pad) uint8 and crop-pixel unit targets (M, 2) of every vehicle with a
     facing target (``targets_of(record)``: (N, 2) per box, NaN for none; ``deepword.facing.box_facings``, the 3D truth,
     by default) in ``records``; with ``rng`` each also once more with its box jittered. With ``pad`` the crop reaches
-    ``pad`` pixels further on each side at the same scale, so that its central
-    ``size`` window is the crop a margin of ``margin`` gives (``augment`` moves that window); a direction in the crop
-    does not depend on the margin (the box grows alike in width and height)."""
+    ``pad`` pixels further on each side at the same scale, so that its central ``size`` window is the crop a margin of
+    ``margin`` gives (``augment`` moves that window); a direction in the crop does not depend on the margin (the box
+    grows alike in width and height)."""
     if pad:
         margin, size = ((1 + 2 * margin) * (size + 2 * pad) / size - 1) / 2, size + 2 * pad
     crops, targets = [], []

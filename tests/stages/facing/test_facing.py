@@ -1,8 +1,8 @@
 """The facing network: its crops and targets from the 3D truth, the crop <-> image vectors, the stage on renders of
 the project's own generator (a few frames, two epochs), its export checked against PyTorch, the runtime that writes
 each vehicle's vector and val accuracy into records (the bev stage: each image decoded once for all its box
-sources), a dataset without 3D truth that learns from its couples' labelled roles, and one without either (no network, no
-vectors)."""
+sources), a dataset without 3D truth that learns from its couples' labelled roles, and one without either (no
+network, no vectors)."""
 
 from __future__ import annotations
 
