@@ -76,10 +76,10 @@ def box_facings(record) -> np.ndarray:
     to tell, and for every box of a record without either key (a team's images labelled in 2D): what the facing
     network and the detector's facing head learn from (the boxes that have one) and what the bev stage scores
     their vectors against."""
-    from deepword.format_3d import record_camera, record_objects_3d
+    from deepword.format_3d import has_3d_truth, record_camera, record_objects_3d
 
     out = np.full((len(record.boxes), 2), np.nan, dtype=np.float32)
-    if "calibration" not in record.extra or "objects_3d" not in record.extra:
+    if not has_3d_truth(record):
         return out
     cam = record_camera(record, "facing targets")
     vehicles, _ = record_objects_3d(record, "facing targets")

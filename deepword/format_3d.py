@@ -139,6 +139,12 @@ def _where(record) -> str:
     return f"{file}:{line}" if line else str(file)
 
 
+def has_3d_truth(record) -> bool:
+    """The record carries both 3D keys (``calibration`` and ``objects_3d``): what the footprints are scored against and
+    the facing network learns from; a team's 2D labels carry neither."""
+    return "calibration" in record.extra and "objects_3d" in record.extra
+
+
 def record_camera(record, needed_by: str) -> Camera:
     """The record's calibrated camera, or Missing3DError naming the file, line and who needs it."""
     cal = record.extra.get("calibration")

@@ -77,10 +77,6 @@ class Frame:
     fused: list[tuple[Box3D, list[Estimate]]]
     contacts: dict[str, dict[int, np.ndarray]]   # image -> {wheel box_id: ground contact}, where one is found
 
-    def wheel_contacts(self, image: str) -> dict[int, np.ndarray]:
-        """{wheel box_id: ground contact (x, y)} of the image's wheels whose contact is found."""
-        return self.contacts[image]
-
     def groups_of(self, image: str) -> list[tuple[Box3D, list[Estimate]]]:
         """The fused footprints one of whose estimates comes from ``image``."""
         return [(box, g) for box, g in self.fused if any(e.image == image for e in g)]
@@ -132,7 +128,7 @@ def with_objects_3d(pred: Record, frame: Frame) -> Record:
     objs = {str(e.vehicle_box_id): footprint_json(box, g)   # a couple no vehicle box owns: footprints.jsonl alone
             for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image and e.vehicle_box_id is not None}
     objs.update({str(w): {"contact": [round(float(v), 4) for v in xy]}
-                 for w, xy in frame.wheel_contacts(pred.image).items()})
+                 for w, xy in frame.contacts[pred.image].items()})
     return replace(pred, extra={**pred.extra, "objects_3d": objs})
 
 
@@ -226,10 +222,16 @@ def rig_view_of(path: Path) -> tuple[str, int] | None:
     return camera, int(stem)
 
 
-def read_rig_calibrations(folder: Path, sizes: dict[str, tuple[int, int]]) -> dict[str, dict]:
-    """{camera: calibration} for the cameras of ``sizes`` ({camera: (width, height)} of its images) from the JSON
+def read_rig_calibrations(folder: Path, sizes: dict[str, set[tuple[int, int]]]) -> dict[str, dict]:
+    """{camera: calibration} for the cameras of ``sizes`` ({camera: the (width, height) of its images}) from the JSON
     files of ``folder``, one per camera, each named by its ``name`` or its file's stem (``calibration_camera``) and
-    validated for its images' size. CalibrationError naming the folder or file where a camera has none, or two."""
+    validated for its images' size. CalibrationError where a camera's images differ in size, or naming the folder or
+    file where a camera has no calibration, or two."""
+    for camera, found in sizes.items():
+        if len(found) > 1:
+            raise CalibrationError(f"the {camera} camera's images have {len(found)} different sizes "
+                                   f"({', '.join(f'{w}x{h}' for w, h in sorted(found))}): one calibration cannot fit "
+                                   "them")
     folder = Path(folder)
     if not folder.is_dir():
         raise CalibrationError(f"{folder}: not a folder (the rig's calibrations: one JSON file per camera)")
@@ -246,7 +248,7 @@ def read_rig_calibrations(folder: Path, sizes: dict[str, tuple[int, int]]) -> di
         if camera:
             found[camera] = path
     out = {}
-    for camera, (width, height) in sorted(sizes.items()):
+    for camera, ((width, height),) in sorted(sizes.items()):
         if camera not in found:
             raise CalibrationError(f"{folder}: no calibration of the {camera} camera (a JSON file named {camera}.json "
                                    f"or {next(k for k, v in WOODSCAPE_CAMERAS.items() if v == camera)}.json, or with "

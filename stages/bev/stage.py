@@ -51,7 +51,7 @@ from deepword.footprint import (
     wheel_contacts,
     write_footprints,
 )
-from deepword.format_3d import Missing3DError, record_camera, record_objects_3d
+from deepword.format_3d import Missing3DError, has_3d_truth, record_camera, record_objects_3d
 from deepword.inference.facing_net import OnnxFacing
 from deepword.top_view import fused_top_view, panel_grid, top_view
 from deepword.word_format import WHEEL, Dataset, Record, load_image, open_dataset, read_records
@@ -74,14 +74,10 @@ BASELINE = "box_bottom"
 PRIOR_FILE = "footprint_prior.json"
 
 
-def _has_3d(rec: Record) -> bool:
-    return "calibration" in rec.extra and "objects_3d" in rec.extra
-
-
 def check_3d(records: list[Record]) -> bool:
     """True when every record has calibration and objects_3d, False when none has; a mix is an error
     naming the first record without them."""
-    have = [_has_3d(r) for r in records]
+    have = [has_3d_truth(r) for r in records]
     if not any(have):
         return False
     for rec, ok in zip(records, have, strict=True):

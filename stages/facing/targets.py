@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from deepword.facing import box_facings
+from deepword.format_3d import has_3d_truth
 
 SOURCE_KEY = "data_source"   # stages.data.compose.SOURCE_KEY (not imported: the facing stage does not need data's)
 MIN_SPAN_PX = 1.0            # wheels whose bottoms lie closer than this (pixels) give no direction
@@ -48,10 +49,6 @@ def role_facings(record) -> np.ndarray:
                 out[row[vehicle]] = d / span
                 break
     return out
-
-
-def has_3d_truth(record) -> bool:
-    return "calibration" in record.extra and "objects_3d" in record.extra
 
 
 def target_source(record, objects_3d: bool = True, roles: bool = True,

@@ -222,12 +222,8 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
         sizes: dict[str, set] = {}
         for p in preds:
             sizes.setdefault(p.camera, set()).add((p.width, p.height))
-        for camera, found in sizes.items():
-            if len(found) > 1:
-                raise InferError(f"the {camera} camera's images have {len(found)} different sizes "
-                                 f"({', '.join(f'{w}x{h}' for w, h in sorted(found))}): one calibration cannot fit them")
         try:
-            cals = read_rig_calibrations(args.rig, {c: next(iter(found)) for c, found in sizes.items()})
+            cals = read_rig_calibrations(args.rig, sizes)
         except CalibrationError as exc:
             raise InferError(str(exc)) from None
         per_image = {p.image: cals[p.camera] for p in preds}
@@ -291,7 +287,7 @@ def add_roles(preds: list[Record], frames: dict, facing_net: OnnxFacing | None, 
             continue
         if facing_net is not None and FACING_KEY not in pred.extra:
             pred = facing_net.annotate(pred, rgb_of(pred))
-        out.append(roles_from_front(pred, frame.fused, frame.wheel_contacts(pred.image)) if placed
+        out.append(roles_from_front(pred, frame.fused, frame.contacts[pred.image]) if placed
                    else roles_from_front(pred))
     return out
 
