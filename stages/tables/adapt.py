@@ -34,6 +34,9 @@ RECIPES = {"finetune": "finetune (default run's weights)",
            "finetune_mixed": "finetune_mixed (default run's weights, generator + N images)",
            "scratch": "scratch (N images alone)", "mixed": "mixed (generator + N images)"}
 BASE_LABEL = "default run (N=0)"
+TITLE = "How many images to label: held-out scores against N"
+KEPT_RECIPES_NOTE = ("Rows of {recipes} kept from this page as `make compare` last wrote it: the tracking store it ran "
+                     "on has no runs of them under this sweep's name (each row names the run it came from).")
 CLASSES = ("vehicle", "wheel")
 # (column stem, plot title); the held-out figures get mean / min / max columns, the in-domain one its mean
 FIGURES = {"e2e": "held-out end-to-end pair_f1 (mixed, detected boxes)",
@@ -149,9 +152,26 @@ def adapt_table(runs: list[RunRecord], experiment: str = ADAPT_EXPERIMENT) -> tu
     elif base is None:
         notes.append("No N=0 row: " + (f"the base run {base_id} is not among this experiment's finished runs."
                                        if base_id else "no job names its base run (adapt.base_run)."))
-    title = "How many images to label: held-out scores against N" + (
-        "" if experiment == ADAPT_EXPERIMENT else f" ({experiment})")
-    return Table(title, header(), rows, notes), used
+    if experiment != ADAPT_EXPERIMENT:
+        notes.append(f"The sweep's runs: experiment_name={experiment}.")
+    return Table(TITLE, header(), rows, notes), used
+
+
+def with_earlier_recipes(table: Table, earlier: Table | None) -> Table:
+    """``table`` (rows from the store's runs) with the rows of ``earlier`` (this page's adapt table as ``make compare``
+    last wrote it) whose recipe it has no row of, the N=0 row too where it has none, and a note naming them: a sweep
+    of one recipe (e.g. under its own ``experiment_name``) adds its curve without wiping the others'. ``table`` as it
+    is where it has no rows or ``earlier`` nothing to add."""
+    if earlier is None or not table.rows:
+        return table
+    have = {row[0] for row in table.rows}
+    kept = [row for row in earlier.rows if row[0] not in have]
+    if not kept:
+        return table
+    order = {label: i for i, label in enumerate((BASE_LABEL, *RECIPES.values()))}
+    rows = sorted([*table.rows, *kept], key=lambda r: (order.get(r[0], len(order)), str(r[0]), r[1]))
+    names = ", ".join(f"`{label}`" for label in dict.fromkeys(row[0] for row in kept))
+    return Table(table.title, table.header, rows, [*table.notes, KEPT_RECIPES_NOTE.format(recipes=names)])
 
 
 def adapt_chart(table: Table, path: Path) -> None:

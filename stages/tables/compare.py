@@ -39,7 +39,7 @@ from pipeline.tables import (
     save_figure,
     tables_in_markdown,
 )
-from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table
+from stages.tables.adapt import ADAPT_EXPERIMENT, adapt_chart, adapt_table, with_earlier_recipes
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import bev_tables
 from stages.tables.default_run import default_run_tables
@@ -276,6 +276,7 @@ def compare(uri: str, experiment: str, out_dir: Path, profile: str | None = None
     t1, t2, t3, td, ta = (keep_earlier(t, used, earlier) for t, used in
                           ((t1, used1), (t2, used2), (t3, used3), (td, used_datasets),
                            (ta, {k: v for k, v in used_adapt.items() if k != "adapt.base"})))   # the sweep's own runs
+    ta = with_earlier_recipes(ta, earlier.get(ta.title)) if KEPT_NOTE not in ta.notes else ta
     tbs = [keep_earlier(t, used_bev, earlier) for t in tbs]
     tdr = [keep_earlier(t, used_default, earlier) for t in tdr]
     if readme is not None and "headline.adapt" not in used_headline:

@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from pipeline.mlflow_ops import MlflowOps
 from pipeline.runs import RunRecord
 from pipeline.tracker import flatten_params
-from stages.tables.adapt import BASE_LABEL, RECIPES, adapt_chart, adapt_table
+from stages.tables.adapt import BASE_LABEL, KEPT_RECIPES_NOTE, RECIPES, TITLE, adapt_chart, adapt_table
 from stages.tables.adapt_base import main as base_main
 from stages.tables.adapt_base import newest_default_run
 from stages.tables.compare import compare
@@ -201,7 +201,8 @@ def test_adapt_table_has_mean_and_range_over_draws_and_the_default_run_at_n0():
     assert used["adapt.finetune.25.1"] == "ft25d1" and "adapt.scratch.100.0" not in used
     assert not any(k.startswith("adapt.scratch.400") for k in used)     # another sweep's name
     mine, used_mine = adapt_table(_runs(), "mine")
-    assert [r[1] for r in mine.rows] == [0, 400] and "(mine)" in mine.title   # its job names base0 too
+    assert [r[1] for r in mine.rows] == [0, 400] and "The sweep's runs: experiment_name=mine." in mine.notes
+    assert mine.title == table.title   # its job names base0 too; one title, so the page's table is found again
     assert any("No N=0 row: the base run base0 is not among" in n for n in adapt_table(_runs()[:-1])[0].notes)
     empty, none = adapt_table([])
     assert not empty.rows and not none and any("make adapt" in n for n in empty.notes)
@@ -273,6 +274,45 @@ def test_a_store_without_the_sweeps_runs_keeps_the_pages_adapt_table(tmp_path):
     assert (tmp_path / "again" / "adapt.png").stat().st_size > 20_000
     compare(store(tmp_path / "base2.db", _runs()[-1:]), "deepword", tmp_path / "third", log=False, results=page)
     assert page.read_text().count(KEPT_NOTE) == 1   # kept again, noted once
+
+def test_a_sweep_of_one_recipe_adds_its_curve_and_keeps_the_pages_other_recipes(tmp_path):
+    """The page's adapt table came from a sweep of every recipe; a store that holds one recipe's runs under another
+    experiment name replaces that recipe's rows, keeps the others' (and the N=0 row) with a note naming them, and
+    draws them all; run again, nothing is kept twice."""
+    from stages.tables.compare import measured_tables
+
+    def store(path, runs):
+        uri = fresh_store(path)
+        ops = MlflowOps(uri, "deepword")
+        base_id = None
+        for run in reversed(runs):
+            run_id = ops.create_run(run.name, {"profile": "smoke", "git_commit": "abc"})
+            ops.log(run_id, metrics=run.metrics, params=run.params | ({"adapt.base_run": base_id} if base_id else {}))
+            ops.end(run_id)
+            base_id = base_id or run_id
+        return uri
+
+    page = tmp_path / "results.md"
+    compare(store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
+    before = measured_tables(page)[TITLE]
+    finetune_again = [_run(f"ftmix{n}", "finetune_mixed", n, 0, _figures(80.0, 90.0), experiment="whole")
+                      for n in (25, 50)]
+    for _ in range(2):
+        compare(store(tmp_path / "one.db", [*finetune_again, _runs()[-1]]), "deepword", tmp_path / "again",
+                log=False, results=page, adapt_experiment="whole")
+        after = measured_tables(page)[TITLE]
+        labels = [(r[0], r[1]) for r in after.rows]
+        assert labels == [(BASE_LABEL, 0), (RECIPES["finetune"], 25), (RECIPES["finetune"], 100),
+                          (RECIPES["finetune_mixed"], 25), (RECIPES["finetune_mixed"], 50), (RECIPES["scratch"], 25),
+                          (RECIPES["mixed"], 25)]
+        assert [r for r in after.rows if r[0] == RECIPES["mixed"]] == [r for r in before.rows
+                                                                      if r[0] == RECIPES["mixed"]]
+        kept = [n for n in after.notes if n.startswith("Rows of")]
+        assert kept == [KEPT_RECIPES_NOTE.format(recipes=f"`{RECIPES['finetune']}`, `{RECIPES['scratch']}`, "
+                                                         f"`{RECIPES['mixed']}`")]
+        assert "The sweep's runs: experiment_name=whole." in after.notes
+    assert (tmp_path / "again" / "adapt.png").stat().st_size > 20_000
+
 
 # --- the default run finetune starts from --------------------------------------------------------------------
 
