@@ -33,13 +33,14 @@ def detections_to_record(detections: np.ndarray, source: Record, box: Letterbox,
                   height=source.height, boxes=boxes, relations=[], wheel_pairs=[], scene=source.scene, extra=extra)
 
 
-def renumbered(record: Record) -> Record:
-    """The record with box ids 0..N-1 again, in box order (as every detection record has them), its facing vectors
-    following their boxes."""
+def renumbered(record: Record, ids: np.ndarray | None = None) -> Record:
+    """The record with box ids ``ids`` (one per box; default 0..N-1 in box order, as every detection record has
+    them), its facing vectors following their boxes."""
     old = record.box_ids
-    record.boxes[:, 6] = np.arange(len(record.boxes))
+    record.boxes[:, 6] = np.arange(len(record.boxes)) if ids is None else ids
     facing = record.extra.get(FACING_KEY)
     if facing is not None:
-        record.extra = {**record.extra, FACING_KEY: {str(new): facing[str(int(o))] for new, o in enumerate(old)
+        record.extra = {**record.extra, FACING_KEY: {str(int(new)): facing[str(int(o))]
+                                                     for new, o in zip(record.boxes[:, 6], old, strict=True)
                                                      if str(int(o)) in facing}}
     return record

@@ -124,11 +124,14 @@ def _fit_frame(views: list[tuple[Record, Camera]], prior: FootprintPrior, fuse_r
 def with_objects_3d(pred: Record, frame: Frame) -> Record:
     """The prediction with its frame's footprints as ``objects_3d``: per vehicle box the fused footprint its estimate
     joined (``footprint_json``: box, evidence, the cameras that saw it, confidence, ``heading_from``), per wheel its
-    contact point; in the calibration's vehicle frame."""
+    contact point; in the calibration's vehicle frame. Boxes the frame was estimated from that ``pred`` lacks (the
+    footprint point's extra detections, numbered after its own) are in footprints.jsonl alone."""
+    own = set(pred.box_ids.tolist())
     objs = {str(e.vehicle_box_id): footprint_json(box, g)   # a couple no vehicle box owns: footprints.jsonl alone
-            for box, g in frame.groups_of(pred.image) for e in g if e.image == pred.image and e.vehicle_box_id is not None}
+            for box, g in frame.groups_of(pred.image) for e in g
+            if e.image == pred.image and e.vehicle_box_id is not None and e.vehicle_box_id in own}
     objs.update({str(w): {"contact": [round(float(v), 4) for v in xy]}
-                 for w, xy in frame.contacts[pred.image].items()})
+                 for w, xy in frame.contacts[pred.image].items() if w in own})
     return replace(pred, extra={**pred.extra, "objects_3d": objs})
 
 

@@ -4,8 +4,8 @@ rows and ``deepword infer`` run.
 An export stage directory (the *bundle*) holds everything inference needs, so nothing upstream must be
 present at inference time::
 
-    export.json            input and decoding settings, detector preprocessing and operating point, the end-to-end
-                           method and the rule it falls back on (fitted on train), file names, metrics
+    export.json            input and decoding settings, detector preprocessing, operating point and footprint point,
+                           the end-to-end method and the rule it falls back on (fitted on train), file names, metrics
     priors.json            the Gaussian-mixture priors (adjacency of the graph)
     relation_static.onnx   objects padded to max_objects (static N; batch dynamic): for embedded runtimes
     relation_dynamic.onnx  batch and object count dynamic
@@ -259,6 +259,21 @@ def bundle_operating_point(detector_cfg: dict) -> tuple[tuple[float, ...] | None
             tuple(float(min_side.get(n, 0.0)) for n in names))
 
 
+def bundle_footprint_point(detector_cfg: dict) -> tuple[float, ...] | None:
+    """Per-class score thresholds (class order) of the detections the footprints are made from: the bundle's
+    ``footprint_point`` ({class name: threshold}) where it is lower than the operating point's, the operating point's
+    for the classes it leaves out; so the footprints see every detection the relations see, and more
+    (docs/bev.md, "Which detections the footprints take"). None where the bundle has no operating point (everything
+    above ``score_threshold`` is kept for both)."""
+    thresholds, _ = bundle_operating_point(detector_cfg)
+    if thresholds is None:
+        return None
+    names, floor = detector_cfg["class_names"], float(detector_cfg["score_threshold"])
+    lower = detector_cfg.get("footprint_point") or {}
+    return tuple(max(floor, min(t, float(lower[n]))) if lower.get(n) is not None else t
+                 for n, t in zip(names, thresholds, strict=True))
+
+
 class OnnxDetector:
     """The exported CenterNet: letterbox + normalise (``deepword.detection.letterbox``), onnxruntime, and the
     detector stage's own detections -> WORD record conversion."""
@@ -274,6 +289,7 @@ class OnnxDetector:
         # at_operating_point=False (AP, the search itself) keeps everything above score_threshold
         self.class_thresholds, self.class_min_sides = (
             bundle_operating_point(cfg) if at_operating_point else (None, (0.0,) * len(cfg["class_names"])))
+        self.footprint_thresholds = bundle_footprint_point(cfg) if at_operating_point else None
         self.session = ort_session(bundle_dir / DETECTOR_FILE, threads)
 
     def detect(self, rgb: np.ndarray, source: Record) -> Record:
@@ -293,3 +309,18 @@ class OnnxDetector:
         if self.class_thresholds is None:
             return record
         return renumbered(keep_at(record, self.class_thresholds, self.class_min_sides))
+
+    def keep_footprint_point(self, record: Record) -> Record:
+        """A ``detect_every`` record with the detections the footprints are made from (``bundle_footprint_point``,
+        at the operating point's minimum sides): those ``keep_operating_point`` keeps, with the ids it gives them,
+        and the ones only the footprint point keeps, numbered after them. So a footprint of one of these names the
+        box of the operating point's record that it places, and the footprints' other boxes name none."""
+        if self.footprint_thresholds is None or self.footprint_thresholds == self.class_thresholds:
+            return self.keep_operating_point(record)
+        relation = kept_mask(record, self.class_thresholds, self.class_min_sides)
+        footprint = kept_mask(record, self.footprint_thresholds, self.class_min_sides) | relation
+        ids = np.empty(len(record.boxes), dtype=np.int64)
+        ids[relation] = np.arange(int(relation.sum()))
+        ids[footprint & ~relation] = np.arange(int(relation.sum()), int(footprint.sum()))
+        kept = replace(record, boxes=record.boxes[footprint].copy(), relations=[], wheel_pairs=[])
+        return renumbered(kept, ids[footprint])

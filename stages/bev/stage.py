@@ -238,7 +238,8 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
     pops = populations(bcfg)
     results, detection, notes, facing, roles = {}, {}, [], {}, {}
     (out_dir / prefix / "footprints").mkdir(parents=True, exist_ok=True)
-    reads = {}   # {boxes: {method: {image: record}}}
+    reads = {}   # {boxes: {method: {image: record}}}: the predictions the footprints are made from
+    relations = {}   # {boxes: {method: path}}: the predictions evaluate scored, where the footprints' differ
     for boxes in bcfg.box_sources:
         predictions = {m: inputs.output("evaluate", "domain_predictions", domain=prefix, boxes=boxes, method=m)
                        for m in bcfg.methods}
@@ -247,8 +248,10 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
             if m not in methods:
                 notes.append(f"`{boxes}` / `{m}` skipped: evaluate wrote no {prefix}predictions/{predictions[m].name}")
         if methods:
-            reads[boxes] = {m: {r.image: r for r in read_records(predictions[m], root=ds.root, allow_empty=True)}
+            sources = {m: footprint_source(inputs, prefix, boxes, m, predictions[m]) for m in methods}
+            reads[boxes] = {m: {r.image: r for r in read_records(sources[m], root=ds.root, allow_empty=True)}
                             for m in methods}
+            relations[boxes] = {m: predictions[m] for m in methods if sources[m] != predictions[m]}
     if facing_net is not None:   # the facing network's vectors replace any a detector wrote
         reads = with_facing_vectors(reads, facing_net, ds.root)
     jobs = {}   # {(boxes, method): (views by frame, use_relations)}
@@ -277,7 +280,12 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                              **({"trust": trust[boxes]} if boxes in trust else {})}
         # the roles deepword infer writes, for the method it runs on these boxes by default
         infer_method = end_to_end if boxes == "detected" and end_to_end in read else facing_lead(boxes, methods)[1]
-        agreement = role_agreement(test, read[infer_method], fused_by[(boxes, infer_method)], cameras, prior)
+        named = read[infer_method]   # infer writes the roles onto the relations at the operating point
+        if infer_method in relations[boxes]:
+            named = {r.image: r for r in read_records(relations[boxes][infer_method], root=ds.root, allow_empty=True)}
+            if facing_net is not None:
+                named = with_facing_vectors({boxes: {infer_method: named}}, facing_net, ds.root)[boxes][infer_method]
+        agreement = role_agreement(test, named, fused_by[(boxes, infer_method)], cameras, prior)
         if agreement is not None:
             roles[boxes] = {**agreement, "method": infer_method}
         for method in [BASELINE, *methods]:
@@ -290,6 +298,17 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
                 name: detection_scores(frames, *keep) for name, keep in detection_subsets(bcfg).items()}
             write_footprints(out_dir / prefix / "footprints" / f"{boxes}_{method}.jsonl", fused)
     return Domain(test, truth, cameras, results, detection, fused_by, notes, facing, roles)
+
+
+def footprint_source(inputs: StageInputs, prefix: str, boxes: str, method: str, scored: Path) -> Path:
+    """The predictions a method's footprints are made from: on detected boxes, evaluate's on the detections of the
+    bundle's footprint point (box name ``footprints``: vehicles down to a lower score than the operating point's,
+    docs/bev.md, "Which detections the footprints take"), where it wrote them; else those it scored (``scored``)."""
+    if boxes == "detected":
+        path = inputs.output("evaluate", "domain_predictions", domain=prefix, boxes="footprints", method=method)
+        if path.is_file():
+            return path
+    return scored
 
 
 def with_facing_vectors(reads: dict, facing_net, root) -> dict:

@@ -190,6 +190,16 @@ def detected_boxes(ctx: EvalContext) -> dict[str, Record] | None:
     return {r.image: boxes_only(r) for r in records}
 
 
+def footprint_detections(ctx: EvalContext) -> dict[str, Record] | None:
+    """The test split's detections the footprints are made from (the bundle's footprint point:
+    ``OnnxDetector.keep_footprint_point``, which keeps the operating point's boxes under the same ids and adds the
+    vehicles only it keeps); None without an exported detector."""
+    if ctx.exported_detections is None:
+        return None
+    detector, every = ctx.exported_detections
+    return {image: detector.keep_footprint_point(rec) for image, rec in every.items()}
+
+
 def detections_for_ap(ctx: EvalContext) -> list[Record] | None:
     """Every detection of the test split down to the detector's ``score_threshold`` (the exported detector,
     without its operating point): the detector stage's AP protocol. Average precision sweeps the score, so

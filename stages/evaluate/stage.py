@@ -28,7 +28,14 @@ from deepword.scoring.report import (
 from deepword.word_format import CLASS_NAMES, SUBSETS, open_dataset, write_records
 from stages.detector.stage import ap_metrics
 from stages.evaluate.gallery import write_gallery
-from stages.evaluate.methods import BOX_SOURCES, FITTED_ON_TRAIN, METHODS, EvalContext, detections_for_ap
+from stages.evaluate.methods import (
+    BOX_SOURCES,
+    FITTED_ON_TRAIN,
+    METHODS,
+    EvalContext,
+    detections_for_ap,
+    footprint_detections,
+)
 
 SHIFT_DIR = "shift"   # the held-out domain's predictions and report
 
@@ -46,6 +53,9 @@ def predictions_file(pred_dir: Path, boxes: str, method: str) -> Path:
     """Where a method's predictions on a box source are written: the stage's declared output ``predictions``
     (conf/config.yaml: ``predictions/{boxes}_{method}.jsonl``, which the bev stage reads)."""
     return Path(pred_dir) / f"{boxes}_{method}.jsonl"
+
+
+FOOTPRINT_BOXES = "footprints"   # the box name of the footprint point's predictions (conf/config.yaml, bev reads them)
 
 
 def build_methods(ctx: EvalContext, fitted: dict[str, object] | None = None) -> dict[str, object]:
@@ -106,7 +116,22 @@ def score_dataset(ctx: EvalContext, methods: dict, pred_dir: Path) -> tuple[dict
                                                for s, recs in subsets.items()}
             errors[boxes][RELATION_ORACLE] = {s: pair_errors_records(recs, oracle, min_px, iou).as_dict()
                                               for s, recs in subsets.items()}
+    if "detected" in predictions:
+        write_footprint_predictions(ctx, methods, pred_dir)
     return results, errors, predictions
+
+
+def write_footprint_predictions(ctx: EvalContext, methods: dict, pred_dir: Path) -> None:
+    """Every method on the detections the bev stage's footprints are made from (``footprint_detections``: the
+    bundle's footprint point, below the operating point), written but not scored: the relations' figures are those at
+    the operating point (docs/bev.md, "Which detections the footprints take"). Nothing without an exported
+    detector (detected boxes from the detector stage's predictions: the bev stage reads the scored ones)."""
+    inputs_by_image = footprint_detections(ctx)
+    if inputs_by_image is None:
+        return
+    for name, method in methods.items():
+        write_records(predictions_file(pred_dir, FOOTPRINT_BOXES, name),
+                      [method.predict(r) for r in inputs_by_image.values()])
 
 
 def subset_sizes(ds, min_px: float) -> dict:

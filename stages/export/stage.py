@@ -58,7 +58,7 @@ from deepword.priors import load_priors
 from deepword.relation_graph import InputConfig, build_graph
 from deepword.rules.baselines import baseline_params, fit_couple_rule, fit_logic, prepare_train
 from deepword.rules.fallback import FALLBACKS, batch_with_fallback
-from deepword.word_format import PRIOR_SPLIT, SUBSETS, boxes_only, load_image, open_dataset
+from deepword.word_format import CLASS_NAMES, PRIOR_SPLIT, SUBSETS, boxes_only, load_image, open_dataset
 from pipeline.tracking import stage_run_info
 from stages.export.latency import batches, cpu_ms, graph_batches, onnx_ms, torch_ms
 from stages.export.parity import ParityReport, detector_parity, relation_parity
@@ -108,14 +108,16 @@ def quantize_int8(src: Path, dst: Path, op_types: list[str]) -> Path:
 def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
                  operating_point: dict | None = None, detector_ap: dict | None = None,
                  min_sides: dict | None = None, end_to_end: dict | None = None, search: dict | None = None,
-                 facing: dict | None = None) -> None:
+                 facing: dict | None = None, footprint_point: dict | None = None) -> None:
     """``export.json``; ``"detector": null`` (and no detector file) when the run had no detector. The
     detector's ``operating_point`` ({class name: score threshold}) and ``min_side`` ({class name: shorter box
     side in image pixels}), chosen on val, are what inference keeps; ``score_threshold`` is the lower bound of
-    what its decoding returns at all. ``ap``: the detector stage's
-    val/test AP, so that reports on this bundle can show it beside the end-to-end rows. ``end_to_end``: the method
-    for detected boxes and the rules fitted on train it may fall back on (``end_to_end_entry``). ``search``: the grid
-    the operating point was chosen from (``operating_point_search``), which ``deepword tune`` searches again.
+    what its decoding returns at all. ``footprint_point`` ({class name: score threshold}): the lower thresholds of the
+    detections the footprints are made from (``deepword.inference.runtime.bundle_footprint_point``). ``ap``: the
+    detector stage's val/test AP, so that reports on this bundle can show it beside the end-to-end rows.
+    ``end_to_end``: the method for detected boxes and the rules fitted on train it may fall back on
+    (``end_to_end_entry``). ``search``: the grid the operating point was chosen from (``operating_point_search``),
+    which ``deepword tune`` searches again.
     ``facing``: the facing network's crop settings and val accuracy (``"facing": null`` and no facing.onnx without
     one: ``deepword.inference.facing_net.OnnxFacing``)."""
     detector = None if det_cfg is None else {k: det_cfg[k] for k in ("input_width", "input_height", "max_detections",
@@ -123,6 +125,7 @@ def write_bundle(out_dir: Path, meta: dict, det_cfg: dict | None, extra: dict,
     if detector is not None:
         detector["operating_point"] = operating_point
         detector["min_side"] = min_sides or {}
+        detector["footprint_point"] = footprint_point or {}
         detector["ap"] = detector_ap or {}
         if search is not None:
             detector["operating_point_search"] = search
@@ -384,6 +387,21 @@ def choose_operating_point(ds, out_dir: Path, det_cfg: dict, op_cfg, min_box_px:
     return thresholds, min_sides, metrics
 
 
+def footprint_thresholds(ex) -> dict[str, float]:
+    """``export.footprint_point`` checked: {class name: score threshold in [0, 1]} (a null threshold: the operating
+    point's, left out)."""
+    out = {}
+    for name, value in (ex.get("footprint_point") or {}).items():
+        if name not in CLASS_NAMES:
+            raise ValueError(f"export.footprint_point: unknown class {name!r}; known: {', '.join(CLASS_NAMES)}")
+        if value is None:
+            continue
+        if not 0.0 <= float(value) <= 1.0:
+            raise ValueError(f"export.footprint_point.{name}: {value} is not a score in [0, 1]")
+        out[name] = float(value)
+    return out
+
+
 def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     import torch
 
@@ -395,6 +413,7 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
     from stages.relation.stage import load_network
 
     ex, out_dir = cfg.export, Path(out_dir)
+    footprint_point = footprint_thresholds(ex)
     torch.manual_seed(int(cfg.seed))
     ds = open_dataset(inputs["data"])
     net, meta = load_network(inputs["relation"])
@@ -449,7 +468,8 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
                   "smoothing": int(ex.operating_point.get("smoothing", 0)),
                   "prior_images": float(det_metrics.get("export.detector.prior_images", 0.0)),
                   "prior_split_images": int(det_metrics.get("export.detector.prior_split_images", 0))}
-        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search, facing)
+        write_bundle(out_dir, meta, det_cfg, {}, operating_point, det_ap, min_sides, end_to_end, search, facing,
+                     footprint_point)
 
     metrics = {
         "export.relation.parity_max_abs_diff": max(reports[v].max_abs_diff for v in ("static", "dynamic")),
@@ -486,5 +506,5 @@ def run(cfg, inputs: dict[str, Path], out_dir: Path) -> dict[str, float]:
         per_model["relation"].update({k: float(v) for k, v in meta.get("metrics", {}).items()})
         registered = register_models(tracking, models, per_model)
     write_bundle(out_dir, meta, det_cfg, {"metrics": metrics, "registered": registered, "threads": threads},
-                 operating_point, det_ap, min_sides, end_to_end, search, facing)
+                 operating_point, det_ap, min_sides, end_to_end, search, facing, footprint_point)
     return metrics

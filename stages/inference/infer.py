@@ -13,7 +13,9 @@ its ``baselines.json``); ``--calibration FILE`` (a WoodScape-style
 JSON: intrinsic + extrinsic) gives loose images their camera; with it, or on a dataset whose records carry
 ``calibration``, each vehicle's bird's-eye-view footprint is written to the predictions' ``objects_3d`` and
 a top view is drawn beside each overlay (the footprint prior comes from the run's bev stage, or ``--bev
-DIR``; docs/bev.md). Each owned wheel's front / rear role is read from which way its vehicle faces (its footprint,
+DIR``; docs/bev.md: on detected boxes the footprints take vehicles down to the bundle's footprint point, below the
+operating point, from a second pass of the relations, and a weaker vehicle's footprint is in ``footprints.jsonl``
+and the top views alone). Each owned wheel's front / rear role is read from which way its vehicle faces (its footprint,
 else the facing network's vector: ``deepword.wheel_roles``), not from the relation network's role head, which is near
 chance; ``--roles network`` keeps the method's. ``--run RUN_ID`` picks the pipeline
 run whose artifacts to use (default: the newest finished one; see ``stages.inference.resolve``), or
@@ -209,12 +211,15 @@ def write_overlay(out_dir: Path, rgb: np.ndarray, pred: Record, frame=None) -> P
     return path
 
 
-def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
-                   facing_net: OnnxFacing | None) -> tuple[list[Record], dict]:
+def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of, facing_net: OnnxFacing | None,
+                   placed: list[Record] | None = None) -> tuple[list[Record], dict]:
     """Footprints for every prediction with a camera (``--calibration`` or the record's own), frame by frame as the
     bev stage estimates them (``estimate_frames``: one instant's images together, with the bev stage's prior and
     fusion radius, each vehicle's facing from the bundle's facing network where it has one); returns the predictions
-    with ``objects_3d`` (and ``facing``) and {frame_id: Frame}. ``rgb_of(record)``: the image's pixels."""
+    with ``objects_3d`` (and ``facing``) and {frame_id: Frame}. ``placed`` (one per prediction, its image's: the
+    relations on the footprint point's detections, whose boxes keep the predictions' ids) is what the footprints are
+    made from where given; a prediction's ``objects_3d`` names its own boxes. ``rgb_of(record)``: the image's
+    pixels."""
 
     calibration, per_image = None, {}
     files = args.calibration or []
@@ -263,7 +268,11 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of,
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
         preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
                  for p in progress(preds, len(preds), "facing network")]
-    frames = estimate_frames([(p, cams[p.image]) for p in preds if p.image in cams], prior, load_fuse_radius(bev_dir),
+        if placed is not None:
+            placed = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
+                      for p in progress(placed, len(placed), "facing network (the footprints' detections)")]
+    placed = preds if placed is None else placed
+    frames = estimate_frames([(p, cams[p.image]) for p in placed if p.image in cams], prior, load_fuse_radius(bev_dir),
                              facing_net.accuracy if facing_net is not None else None,
                              progress=lambda items, n: progress(items, n, "footprints", "frame"),
                              workers=args.threads)
@@ -337,21 +346,37 @@ def infer(args) -> list[Record]:
         # --detections); the relations see only those at the operating point
         write_records(args.out / DETECTIONS_FILE, every)
         records = [detector.keep_operating_point(r) for r in every]
+        # the footprints take vehicles down to the bundle's footprint point, below the operating point
+        # (docs/bev.md, "Which detections the footprints take"): their own pass of the relations
+        placed = [detector.keep_footprint_point(r) for r in every] if wants_footprints(args, every) else None
+    else:
+        placed = None
     name = args.method or default_method(dirs, detect)
     if args.method is None:
         why = "the bundle's end-to-end method" if detect else "on the dataset's own boxes"
         print(f"method: {name} ({why})", file=sys.stderr)
     method = build_method(name, dirs, root, args.threads, rgb_of)
     preds = [method.predict(r) for r in progress(records, len(records), f"relations ({name})")]
-    return write_predictions(args, dirs, preds, rgb_of, overlays)
+    if placed is not None and any(len(p.boxes) != len(r.boxes) for p, r in zip(placed, records, strict=True)):
+        placed = [method.predict(r) for r in progress(placed, len(placed), f"relations for the footprints ({name})")]
+    else:
+        placed = None
+    return write_predictions(args, dirs, preds, rgb_of, overlays, placed)
 
 
-def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, overlays: int) -> list[Record]:
-    """``labels.jsonl`` with the footprints where there are cameras (``add_footprints``), the first ``overlays``
-    overlays (each with its image's top view), each frame's fused footprints ``footprints.jsonl`` and the top views of
-    frames of several images ``top_views/`` beside the overlays."""
+def wants_footprints(args, records: list[Record]) -> bool:
+    """Whether footprints will be asked for: a calibration given (``--calibration``, ``--rig``) or in the records."""
+    return bool(args.calibration) or args.rig is not None or any("calibration" in r.extra for r in records)
+
+
+def write_predictions(args, dirs: dict[str, Path], preds: list[Record], rgb_of, overlays: int,
+                      placed: list[Record] | None = None) -> list[Record]:
+    """``labels.jsonl`` with the footprints where there are cameras (``add_footprints``; made from ``placed``, the
+    predictions on the footprint point's detections, where given), the first ``overlays`` overlays (each with its
+    image's top view), each frame's fused footprints ``footprints.jsonl`` and the top views of frames of several
+    images ``top_views/`` beside the overlays."""
     facing_net = OnnxFacing.from_bundle(dirs["export"], args.threads) if "export" in dirs else None
-    preds, frames = add_footprints(args, dirs, preds, rgb_of, facing_net)
+    preds, frames = add_footprints(args, dirs, preds, rgb_of, facing_net, placed)
     if args.roles == "front":
         preds = add_roles(preds, frames, facing_net, rgb_of)
     write_records(args.out / PREDICTIONS_FILE, preds)

@@ -162,3 +162,53 @@ def test_footprints_fitted_in_worker_processes_are_the_ones_fitted_in_one(bev_ru
                                      progress=lambda items, n: (seen.append(n), items)[1])
     assert seen == [2] and list(one) == list(two) == sorted({r.frame_id for r in test})
     assert all(one[f].fused == two[f].fused and one[f].fused for f in one)
+
+
+def test_detected_boxes_footprints_come_from_the_footprint_points_predictions_in_the_stage_and_in_infer(tmp_path):
+    """Evaluate's predictions on the footprint point's detections (here the whole records) are what the bev stage
+    places detected boxes from, where the relations it scored (here without each image's first vehicle) see fewer;
+    ``deepword infer`` places the same from them, and writes the scored predictions, each naming only its own
+    boxes."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    test = _dataset(tmp_path / "data", frames=4, seed=3, test_from=2)
+
+    def without_first_vehicle(rec):
+        first = int(rec.box_ids[rec.class_ids == 0][0])
+        keep = rec.box_ids != first
+        objects = {k: v for k, v in rec.extra["objects_3d"].items() if int(k) != first}
+        return replace(rec, boxes=rec.boxes[keep].copy(), relations=[r for r in rec.relations if r[0] != first],
+                       extra={**rec.extra, "objects_3d": objects})
+
+    scored = [without_first_vehicle(r) for r in test]
+    predictions = tmp_path / "evaluate" / "predictions"
+    _predictions(predictions / f"gt_{METHOD}.jsonl", test)
+    _predictions(predictions / f"detected_{METHOD}.jsonl", scored)
+    _predictions(predictions / f"footprints_{METHOD}.jsonl", test)
+    bcfg = {**OmegaConf.to_container(OmegaConf.load(CONF / "bev" / "default.yaml")), "methods": [METHOD],
+            "box_sources": ["gt", "detected"], "figures": 0}
+    out = tmp_path / "bev"
+    out.mkdir()
+    dirs = {name: tmp_path / name for name in ("data", "evaluate")}
+    run(OmegaConf.create({"bev": bcfg, "seed": 0}), stage_inputs("bev", dirs), out)
+    by_stage = (out / "footprints" / f"detected_{METHOD}.jsonl").read_text()
+    assert by_stage == (out / "footprints" / f"gt_{METHOD}.jsonl").read_text()
+
+    infer_out = tmp_path / "infer"
+    infer_out.mkdir()
+    args = parser().parse_args(["--dataset", str(tmp_path / "data"), "--out", str(infer_out), "--bev", str(out)])
+    preds = write_predictions(args, {}, scored, lambda r: load_image(tmp_path / "data", r), overlays=0,
+                              placed=test)
+    assert (infer_out / "footprints.jsonl").read_text() == by_stage
+    for pred, rec in zip(preds, scored, strict=True):
+        assert np.array_equal(pred.boxes, rec.boxes)
+        assert {int(k) for k in pred.extra["objects_3d"]} <= set(rec.box_ids.tolist())
+
+    # without them, the detected boxes are placed from the scored predictions: fewer vehicles
+    (predictions / f"footprints_{METHOD}.jsonl").unlink()
+    again = tmp_path / "bev_again"
+    again.mkdir()
+    run(OmegaConf.create({"bev": bcfg, "seed": 0}), stage_inputs("bev", dirs), again)
+    assert (again / "footprints" / f"detected_{METHOD}.jsonl").read_text() != by_stage

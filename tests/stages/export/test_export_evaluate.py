@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import numpy as np
+
 
 def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     _, metrics = exported
@@ -64,6 +66,29 @@ def test_evaluate_runs_the_onnx_rows_on_both_box_sources(exported, evaluated):
     # disagreements drawn on both box sources, at most eval.gallery_images each (the toy detector's methods may agree)
     assert 0 < len(list((evaluated / "artifacts" / "gallery").glob("*.png"))) <= 2
     assert len(list((evaluated / "artifacts" / "gallery_detected").glob("*.png"))) <= 2
+
+
+def test_evaluate_writes_each_rows_predictions_on_the_footprint_points_detections(evaluated):
+    """For the bev stage: every row on the detections of the bundle's footprint point (vehicles down to 0.1 here),
+    written beside the scored predictions; their boxes are the scored ones under the same ids, and weaker vehicles."""
+    from deepword.word_format import read_records
+
+    report = json.loads((evaluated / "report.json").read_text())
+    for method in report["results"]["detected"]:
+        if method == "relation_oracle":
+            continue
+        scored = {r.image: r for r in read_records(evaluated / "predictions" / f"detected_{method}.jsonl",
+                                                   allow_empty=True)}
+        placed = {r.image: r for r in read_records(evaluated / "predictions" / f"footprints_{method}.jsonl",
+                                                   allow_empty=True)}
+        assert placed.keys() == scored.keys()
+        for image, rec in scored.items():
+            more = placed[image]
+            by_id = {int(b[6]): b for b in more.boxes}
+            assert all(np.array_equal(by_id[int(b[6])], b) for b in rec.boxes)
+            extra = [b for i, b in by_id.items() if i not in set(rec.box_ids.tolist())]
+            assert all(b[5] == 0 and 0.1 <= b[4] for b in extra)
+            assert sorted(by_id) == list(range(len(more.boxes)))
 
 
 def test_without_a_detector_the_bundle_is_relation_only_and_evaluate_scores_ground_truth_boxes(upstream, tmp_path):

@@ -33,6 +33,7 @@ def test_stage_writes_checked_models_and_metrics(exported):
     assert metrics["export.detector.threshold.vehicle"] == op["vehicle"]
     assert bundle["detector"]["min_side"] == {"vehicle": 0.0, "wheel": metrics["export.detector.min_side.wheel"]}
     assert bundle["detector"]["min_side"]["wheel"] in (0.0, 4.0)
+    assert bundle["detector"]["footprint_point"] == {"vehicle": 0.1}   # a null class keeps the operating point's
     assert metrics["export.detector.operating_point_evaluations"] == 9 * 2
     assert 0 < metrics["export.detector.operating_point_relation_runs"] <= 18 * 6   # each distinct subset once
     assert metrics["export.detector.val_pair_f1"] >= metrics["export.detector.val_pair_f1_at_score_threshold"]
@@ -69,6 +70,62 @@ def test_a_bundle_detector_keeps_what_its_operating_point_keeps(exported, tmp_pa
         (bundle_dir / BUNDLE_FILE).write_text(json.dumps(bundle))
         kept = OnnxDetector(bundle_dir).keep_operating_point(every)
         assert kept.scores.tolist() == scores and kept.box_ids.tolist() == list(range(len(scores)))
+
+
+def test_the_footprints_take_the_operating_points_boxes_under_their_ids_and_weaker_vehicles_after_them(exported,
+                                                                                                     tmp_path):
+    """The footprint point keeps every box the operating point keeps, with the ids keep_operating_point gives them,
+    and the vehicles between the two thresholds numbered after them; a footprint threshold above the operating
+    point's does not raise it, and a bundle without one (or from before it existed) keeps the operating point's."""
+    import shutil
+
+    from deepword.inference.runtime import OnnxDetector
+    from deepword.word_format import Record
+
+    out, _ = exported
+    bundle_dir = tmp_path / "bundle"
+    shutil.copytree(out, bundle_dir)
+    bundle = json.loads((bundle_dir / BUNDLE_FILE).read_text())
+    bundle["detector"].update(operating_point={"vehicle": 0.3, "wheel": 0.2}, min_side={"wheel": 8.0})
+    # by falling score: a vehicle, a 20 px wheel, a 5 px wheel, a weak vehicle, a weaker one, a weak 20 px wheel
+    every = Record(image="images/front/000001.png", frame_id=1, camera="front", width=200, height=100,
+                   boxes=np.array([[10, 10, 110, 70, 0.9, 0, 0], [15, 50, 35, 70, 0.8, 1, 1],
+                                   [60, 62, 65, 67, 0.6, 1, 2], [120, 10, 190, 60, 0.25, 0, 3],
+                                   [130, 20, 180, 50, 0.12, 0, 4], [85, 50, 105, 70, 0.15, 1, 5]]),
+                   relations=[], wheel_pairs=[], extra={"facing": {"0": [1.0, 0.0], "3": [0.0, 1.0]}})
+    for point, scores, ids in (({"vehicle": 0.2}, [0.9, 0.8, 0.25], [0, 1, 2]),
+                               ({"vehicle": 0.1, "wheel": 0.5}, [0.9, 0.8, 0.25, 0.12], [0, 1, 2, 3]),
+                               ({"vehicle": 0.6}, [0.9, 0.8], [0, 1]),
+                               (None, [0.9, 0.8], [0, 1])):
+        bundle["detector"].pop("footprint_point", None)
+        if point is not None:
+            bundle["detector"]["footprint_point"] = point
+        (bundle_dir / BUNDLE_FILE).write_text(json.dumps(bundle))
+        detector = OnnxDetector(bundle_dir)
+        relations = detector.keep_operating_point(every)
+        footprints = detector.keep_footprint_point(every)
+        assert relations.scores.tolist() == [0.9, 0.8] and relations.box_ids.tolist() == [0, 1]
+        assert footprints.scores.tolist() == scores and footprints.box_ids.tolist() == ids
+    # the detector's facing vectors follow their boxes' new ids
+    bundle["detector"]["footprint_point"] = {"vehicle": 0.2}
+    (bundle_dir / BUNDLE_FILE).write_text(json.dumps(bundle))
+    assert OnnxDetector(bundle_dir).keep_footprint_point(every).extra["facing"] == {"0": [1.0, 0.0], "2": [0.0, 1.0]}
+
+
+@pytest.mark.parametrize("point, message", [
+    ({"car": 0.2}, "export.footprint_point: unknown class 'car'; known: vehicle, wheel"),
+    ({"vehicle": 1.5}, "export.footprint_point.vehicle: 1.5 is not a score in [0, 1]"),
+])
+def test_a_bad_footprint_point_is_refused_naming_the_key(point, message):
+    from omegaconf import OmegaConf
+
+    from stages.export.stage import footprint_thresholds
+
+    with pytest.raises(ValueError) as err:
+        footprint_thresholds(OmegaConf.create({"footprint_point": point}))
+    assert str(err.value) == message
+    assert footprint_thresholds(OmegaConf.create({"footprint_point": {"vehicle": 0.2, "wheel": None}})) == \
+        {"vehicle": 0.2}
 
 
 def test_the_bundle_ships_its_end_to_end_method_and_the_rule_it_falls_back_on(upstream, exported, evaluated):

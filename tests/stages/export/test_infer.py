@@ -252,9 +252,9 @@ def test_flip_averaged_relation_scores_do_not_depend_on_which_way_the_image_face
     assert not np.allclose(p[0], q[0], atol=1e-4)
 
 
-def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exported, tmp_path, capsys):
-    """A dataset whose records carry their calibration gives footprints on detected boxes too: the detections keep
-    their image's camera."""
+def _calibrated_frame(tmp_path):
+    """A rendered frame's four images as a dataset whose records carry their calibration, and a bev stage output
+    with a footprint prior: (dataset root, bev dir)."""
     from deepword.footprint import FootprintPrior
     from deepword.inference.footprints import PRIOR_FILE
     from deepword.word_format import write_dataset_index, write_records
@@ -275,6 +275,13 @@ def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exp
     prior = FootprintPrior(width=1.8, length=4.5, wheelbase=2.7, length_slope=1.0, length_offset=1.8,
                            track_inset=0.1, contact_shift=0.3, box_shift=2.5, height=1.5)
     (bev / PRIOR_FILE).write_text(json.dumps(prior.to_json()))
+    return data, bev
+
+
+def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exported, tmp_path, capsys):
+    """A dataset whose records carry their calibration gives footprints on detected boxes too: the detections keep
+    their image's camera."""
+    data, bev = _calibrated_frame(tmp_path)
     out = tmp_path / "out"
     assert infer(["--dataset", str(data), "--detect", "--out", str(out), "--export", str(exported[0]),
                   "--bev", str(bev)]) == 0
@@ -288,3 +295,50 @@ def test_infer_with_detected_boxes_on_a_calibrated_dataset_writes_footprints(exp
     own = read_records(tmp_path / "own" / "labels.jsonl", root=data)
     assert any(p.relations for p in own) and all("roles_from" in p.extra for p in own if p.relations)
     assert "wheel roles read from: footprint " in capsys.readouterr().out
+
+
+def test_infer_places_the_footprint_points_vehicles_and_writes_the_operating_points_relations(exported, tmp_path,
+                                                                                             monkeypatch):
+    """With a footprint point below the operating point, infer runs the relations once more on the weaker vehicles'
+    detections for the footprints; labels.jsonl holds the operating point's boxes and relations as without it, each
+    naming only its own boxes, and the footprints place the weaker vehicles too."""
+    import shutil
+
+    import numpy as np
+
+    from deepword.inference.runtime import BUNDLE_FILE
+    from stages.inference import infer as infer_module
+
+    data, bev = _calibrated_frame(tmp_path)
+
+    class TruthAsDetections(infer_module.OnnxDetector):
+        """Each image's true boxes as detections: its first vehicle scored 0.2, every other box 0.9."""
+
+        def detect_every(self, rgb, source):
+            boxes = source.boxes.copy()
+            boxes[:, 4] = 0.9
+            vehicles = np.flatnonzero(boxes[:, 5] == 0)
+            boxes[vehicles[:1], 4] = 0.2
+            return replace(source, boxes=boxes, relations=[], wheel_pairs=[])
+
+    monkeypatch.setattr(infer_module, "OnnxDetector", TruthAsDetections)
+    outs = {}
+    for name, point in (("with", {"vehicle": 0.1}), ("without", {})):
+        bundle_dir = tmp_path / f"bundle_{name}"
+        shutil.copytree(exported[0], bundle_dir)
+        bundle = json.loads((bundle_dir / BUNDLE_FILE).read_text())
+        bundle["detector"].update(operating_point={"vehicle": 0.5, "wheel": 0.5}, min_side={}, footprint_point=point)
+        (bundle_dir / BUNDLE_FILE).write_text(json.dumps(bundle))
+        outs[name] = tmp_path / f"out_{name}"
+        assert infer(["--dataset", str(data), "--detect", "--out", str(outs[name]), "--export", str(bundle_dir),
+                      "--bev", str(bev)]) == 0
+    preds = {n: read_records(outs[n] / "labels.jsonl", root=data, allow_empty=True) for n in outs}
+    for a, b in zip(preds["with"], preds["without"], strict=True):
+        assert np.array_equal(a.boxes, b.boxes) and [r[:2] for r in a.relations] == [r[:2] for r in b.relations]
+        assert {int(k) for k in a.extra["objects_3d"]} <= set(a.box_ids.tolist())
+        assert (a.scores[a.class_ids == 0] == 0.9).all()
+
+    def footprints(out) -> int:
+        return sum(len(json.loads(line)["footprints"]) for line in (out / "footprints.jsonl").read_text().splitlines())
+
+    assert footprints(outs["with"]) > footprints(outs["without"])

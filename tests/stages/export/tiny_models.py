@@ -23,6 +23,7 @@ DETECTOR = {"backbone": {"_target_": "stages.detector.backbones.TinyBackbone", "
 EXPORT_CFG = {"min_box_px": 4, "register": True, "int8": {"op_types": ["MatMul", "Gemm"]},
               "parity": {"max_abs_diff": 1e-4, "min_agreement": 99.9, "images": None, "detector_images": 3},
               "latency": {"threads": 1, "runs": 3, "warmup": 1, "images": 4},
+              "footprint_point": {"vehicle": 0.1, "wheel": None},
               "operating_point": {"grid": [0.1, 0.3, 0.5], "min_side_grid": {"wheel": [0, 4]}, "match_iou": 0.5,
                                   "images": None, "threads": 1},
               # the IoU rule fitted as the `evaluated` fixture fits its logic row (fit_images 20, the default grids)
