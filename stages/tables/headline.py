@@ -1,7 +1,8 @@
 """The README's headline: what ``make pipeline``'s default configuration gives, from the newest default run with
 end-to-end rows (``stages.tables.adapt_base.is_default_run``: no sweep, the generator's data, trained from scratch,
 the default settings of its profile), and, where the adapt sweep has run, what 50 labelled images of a new camera
-buy with the recipe docs/adapt.md recommends. ``make compare`` writes it between the README's markers."""
+buy with the recipe docs/adapt.md recommends (its draws started from that run, else, until the sweep runs from it,
+from the default run they name, with a note saying so). ``make compare`` writes it between the README's markers."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from deepword.scoring.report import metric_name
 from deepword.word_format import SUBSETS
 from pipeline.runs import RunRecord
 from pipeline.tables import Table, between
-from stages.tables.adapt import adapt_points, end_to_end_method
+from stages.tables.adapt import adapt_points, base_run_id, end_to_end_method
 from stages.tables.adapt_base import is_default_run
 from stages.tables.bev import score
 
@@ -56,8 +57,7 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
         if any(c is not None for c in cells):
             rows.append([label, *cells])
     sources = {"headline": run.run_id}
-    adapted = [r for (recipe, n, _), r in adapt_points(runs, adapt_experiment, run.run_id).items()
-               if recipe == ADAPT_RECIPE and n == ADAPT_IMAGES]
+    adapted, started_from = recommended_points(runs, adapt_experiment, run.run_id)
     if adapted:
         draws = [_cells(r.metrics, "shift.detected", end_to_end_method(r)) for r in adapted]
         draws_said = f"mean of {len(adapted)} draws" if len(adapted) > 1 else "one draw"
@@ -72,9 +72,29 @@ def headline_table(runs: list[RunRecord], adapt_experiment: str) -> tuple[Table,
     bev = _bev_note(m, end_to_end_method(run))
     if bev:
         notes.append(bev)
+    if adapted and started_from is not None:
+        base = next((r for r in runs if r.run_id == started_from), None)
+        named = (f"{base.name} ({base.tags.get('git_commit', '?')[:7]})" if base is not None else started_from)
+        notes.append(f"The last row's runs started from the default run {named}, not from the one above: `make adapt` "
+                     "has not run from it yet.")
     notes.append(f"Run {run.name} ({run.tags.get('git_commit', '?')[:7]}), profile {run.tags.get('profile', '?')}, "
                  f"seed {run.tags.get('seed', '?')}; every image is a synthetic render.")
     return Table("Headline", header, rows, notes), sources
+
+
+def recommended_points(runs: list[RunRecord], experiment: str, headline: str) -> tuple[list[RunRecord], str | None]:
+    """The recommended recipe's draws at ADAPT_IMAGES (``runs``: newest first): those started from the headline's run
+    (``headline``), and None; where the sweep has none from it (a default run newer than the sweep), those started
+    from the default run its newest such draw names, and that run's id."""
+    def at_n(points: dict) -> list[RunRecord]:
+        return [r for (recipe, n, _), r in points.items() if recipe == ADAPT_RECIPE and n == ADAPT_IMAGES]
+
+    adapted = at_n(adapt_points(runs, experiment, headline))
+    if adapted or not ADAPT_RECIPE.startswith("finetune"):
+        return adapted, None
+    newest = at_n(adapt_points(runs, experiment))
+    base = base_run_id(newest[0]) if newest else None
+    return (at_n(adapt_points(runs, experiment, base)), base) if base is not None else ([], None)
 
 
 def _bev_note(metrics: dict[str, float], method: str) -> str | None:

@@ -111,6 +111,20 @@ def test_the_headline_quotes_the_recommended_recipe_at_50_images_as_the_mean_of_
     assert row[1:] == [65.0, 66.0, 67.0, 30.5]   # shift e2e of draws 60/70 (+i), image_acc 30/31
 
 
+def test_a_default_run_newer_than_the_sweep_quotes_the_draws_of_the_run_they_started_from_and_says_so():
+    """No draw started from the headline's run yet (a new commit's default run): the recommended recipe's draws that
+    started from one default run, the newest draw's, are quoted, with a note naming that run."""
+    runs = [RunRecord("base", "default", 3, _default_params(), _metrics(80.0), QUICK),
+            *_draws("fm", "finetune_mixed", "older"),
+            _adapt_run("stale", "finetune_mixed", 0, "oldest", _metrics(20.0), start=2),
+            RunRecord("older", "default", 0, _default_params(), _metrics(70.0), {"git_commit": "1234567"} | QUICK)]
+    table, sources = headline_table(runs, "adapt")
+    assert sources["headline"] == "base" and sources["headline.adapt"] == "fm0,fm1"
+    assert table.rows[-1][1:] == [65.0, 66.0, 67.0, 30.5]
+    assert ("The last row's runs started from the default run default (1234567), not from the one above: `make adapt` "
+            "has not run from it yet.") in table.notes
+
+
 def test_a_mixed_headline_quotes_its_draws_whichever_default_run_they_name(monkeypatch):
     from stages.tables import headline
 
