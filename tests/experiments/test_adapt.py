@@ -224,16 +224,22 @@ def test_adapt_chart_draws_the_curves(tmp_path):
     assert (tmp_path / "adapt.png").stat().st_size > 20_000
 
 
-def test_compare_writes_the_adapt_table_curves_and_results_section(tmp_path):
-    uri = fresh_store(tmp_path / "mlflow.db")
+def _store(path, runs) -> str:
+    """A sqlite MLflow store holding ``runs`` (newest first), each finetune job naming the store's id of the oldest
+    run (the base run) as its ``adapt.base_run``; its URI."""
+    uri = fresh_store(path)
     ops = MlflowOps(uri, "deepword")
     base_id = None
-    for run in reversed(_runs()):   # oldest first (the base run): the store's newest is the list's first
+    for run in reversed(runs):
         run_id = ops.create_run(run.name, {"profile": "smoke", "git_commit": "abc"})
-        params = run.params | ({"adapt.base_run": base_id} if base_id else {})   # the store's id of the base run
-        ops.log(run_id, metrics=run.metrics, params=params)
+        ops.log(run_id, metrics=run.metrics, params=run.params | ({"adapt.base_run": base_id} if base_id else {}))
         ops.end(run_id)
         base_id = base_id or run_id
+    return uri
+
+
+def test_compare_writes_the_adapt_table_curves_and_results_section(tmp_path):
+    uri = _store(tmp_path / "mlflow.db", _runs())
     page = tmp_path / "results.md"
     result = compare(uri, "deepword", tmp_path / "cmp", log=False, results=page)
     with (tmp_path / "cmp" / "adapt.csv").open() as f:
@@ -252,28 +258,18 @@ def test_a_store_without_the_sweeps_runs_keeps_the_pages_adapt_table(tmp_path):
     adapt table and curves (with a note saying so) instead of writing an empty table over them."""
     from stages.tables.compare import KEPT_NOTE, measured_tables
 
-    def store(path, runs):
-        uri = fresh_store(path)
-        ops = MlflowOps(uri, "deepword")
-        base_id = None
-        for run in reversed(runs):
-            run_id = ops.create_run(run.name, {"profile": "smoke", "git_commit": "abc"})
-            ops.log(run_id, metrics=run.metrics, params=run.params | ({"adapt.base_run": base_id} if base_id else {}))
-            ops.end(run_id)
-            base_id = base_id or run_id
-        return uri
-
     page = tmp_path / "results.md"
-    compare(store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
+    compare(_store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
     title = next(t for t in measured_tables(page) if t.startswith("How many images to label"))
     measured = measured_tables(page)[title]
     assert len(measured.rows) == 5 and KEPT_NOTE not in measured.notes
-    compare(store(tmp_path / "base.db", _runs()[-1:]), "deepword", tmp_path / "again", log=False, results=page)
+    compare(_store(tmp_path / "base.db", _runs()[-1:]), "deepword", tmp_path / "again", log=False, results=page)
     kept = measured_tables(page)[title]
     assert (kept.header, kept.rows, kept.notes) == (measured.header, measured.rows, [*measured.notes, KEPT_NOTE])
     assert (tmp_path / "again" / "adapt.png").stat().st_size > 20_000
-    compare(store(tmp_path / "base2.db", _runs()[-1:]), "deepword", tmp_path / "third", log=False, results=page)
+    compare(_store(tmp_path / "base2.db", _runs()[-1:]), "deepword", tmp_path / "third", log=False, results=page)
     assert page.read_text().count(KEPT_NOTE) == 1   # kept again, noted once
+
 
 def test_a_sweep_of_one_recipe_adds_its_curve_and_keeps_the_pages_other_recipes(tmp_path):
     """The page's adapt table came from a sweep of every recipe; a store that holds one recipe's runs under another
@@ -281,24 +277,13 @@ def test_a_sweep_of_one_recipe_adds_its_curve_and_keeps_the_pages_other_recipes(
     draws them all; run again, nothing is kept twice."""
     from stages.tables.compare import measured_tables
 
-    def store(path, runs):
-        uri = fresh_store(path)
-        ops = MlflowOps(uri, "deepword")
-        base_id = None
-        for run in reversed(runs):
-            run_id = ops.create_run(run.name, {"profile": "smoke", "git_commit": "abc"})
-            ops.log(run_id, metrics=run.metrics, params=run.params | ({"adapt.base_run": base_id} if base_id else {}))
-            ops.end(run_id)
-            base_id = base_id or run_id
-        return uri
-
     page = tmp_path / "results.md"
-    compare(store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
+    compare(_store(tmp_path / "sweep.db", _runs()), "deepword", tmp_path / "cmp", log=False, results=page)
     before = measured_tables(page)[TITLE]
     finetune_again = [_run(f"ftmix{n}", "finetune_mixed", n, 0, _figures(80.0, 90.0), experiment="whole")
                       for n in (25, 50)]
     for _ in range(2):
-        compare(store(tmp_path / "one.db", [*finetune_again, _runs()[-1]]), "deepword", tmp_path / "again",
+        compare(_store(tmp_path / "one.db", [*finetune_again, _runs()[-1]]), "deepword", tmp_path / "again",
                 log=False, results=page, adapt_experiment="whole")
         after = measured_tables(page)[TITLE]
         labels = [(r[0], r[1]) for r in after.rows]
