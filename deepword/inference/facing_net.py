@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepword.facing import with_facing
+from deepword.facing import record_facing, with_facing
 from deepword.facing_crop import to_image
 from deepword.footprint import FACING_SCALE_KEY
 from deepword.relation_graph import crop_objects
@@ -73,6 +73,13 @@ class OnnxFacing:
         (``deepword.facing.with_facing``) and their log-odds scale (``deepword.footprint.FACING_SCALE_KEY``)."""
         out = with_facing(extra, vectors, self.accuracy)
         return out if self.logit_scale is None else {**out, FACING_SCALE_KEY: round(self.logit_scale, 4)}
+
+    def with_vectors_of(self, rec: Record, annotated: Record) -> Record:
+        """``rec`` with the vectors this network wrote into ``annotated`` (``annotate``: a record of the same image
+        whose boxes hold ``rec``'s under the same ids, e.g. the footprint point's), without running it again."""
+        own = set(rec.box_ids.tolist())
+        vectors = {k: np.asarray(v) for k, v in record_facing(annotated).items() if k in own}
+        return replace(rec, extra=self.with_vectors(rec.extra, vectors))
 
     def annotate(self, rec: Record, rgb: np.ndarray) -> Record:
         """``rec`` with its vehicles' vectors (``with_vectors``)."""

@@ -283,8 +283,9 @@ def score_domain(ds: Dataset, prefix: str, inputs: StageInputs, prior: Footprint
         named = read[infer_method]   # infer writes the roles onto the relations at the operating point
         if infer_method in relations[boxes]:
             named = {r.image: r for r in read_records(relations[boxes][infer_method], root=ds.root, allow_empty=True)}
-            if facing_net is not None:
-                named = with_facing_vectors({boxes: {infer_method: named}}, facing_net, ds.root)[boxes][infer_method]
+            if facing_net is not None:   # their boxes are the footprint point's under the same ids: copy the vectors
+                named = {image: facing_net.with_vectors_of(r, read[infer_method][image])
+                         if image in read[infer_method] else r for image, r in named.items()}
         agreement = role_agreement(test, named, fused_by[(boxes, infer_method)], cameras, prior)
         if agreement is not None:
             roles[boxes] = {**agreement, "method": infer_method}

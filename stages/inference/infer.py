@@ -266,11 +266,12 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of, fac
         raise InferError(str(exc)) from None
     cams = {p.image: cam for p in preds if (cam := camera_of(p, per_image.get(p.image, calibration))) is not None}
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
-        preds = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
-                 for p in progress(preds, len(preds), "facing network")]
-        if placed is not None:
-            placed = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
-                      for p in progress(placed, len(placed), "facing network (the footprints' detections)")]
+        annotated = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
+                     for p in progress(placed or preds, len(preds), "facing network")]
+        # the footprint point's boxes hold the predictions' under the same ids: their vectors are copied, not run again
+        preds = annotated if placed is None else [facing_net.with_vectors_of(p, a) if p.image in cams else p
+                                                  for p, a in zip(preds, annotated, strict=True)]
+        placed = annotated if placed is not None else None
     placed = preds if placed is None else placed
     frames = estimate_frames([(p, cams[p.image]) for p in placed if p.image in cams], prior, load_fuse_radius(bev_dir),
                              facing_net.accuracy if facing_net is not None else None,
