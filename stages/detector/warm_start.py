@@ -32,7 +32,7 @@ def budget(train: dict, cfg) -> dict:
     unknown = [part for part in freeze if part not in FREEZABLE]
     if unknown:
         raise InitError(f"init.detector_train.freeze: unknown part(s) {unknown}; the detector's parts are {FREEZABLE}")
-    return {"epochs": int(given("epochs", scaled_epochs(det["epochs"]))),
+    return {"epochs": int(given("epochs", scaled_epochs(det["epochs"], cfg))),
             "lr": float(given("lr", float(det["optimizer"]["lr"]) / 3)),
             "warmup_fraction": float(given("warmup_fraction", det["optimizer"]["warmup_fraction"])),
             "ema_decay": float(given("ema_decay", det.get("ema_decay", 0.0))),

@@ -30,7 +30,7 @@ def budget(train: dict, cfg) -> dict:
     def given(key, default):
         return default if train.get(key) is None else train[key]
 
-    return {"epochs": int(given("epochs", scaled_epochs(tr.epochs))),
+    return {"epochs": int(given("epochs", scaled_epochs(tr.epochs, cfg))),
             "lr": float(given("lr", float(tr.lr) / 3)),
             "patience": int(given("patience", tr.patience)),
             "ema_decay": float(given("ema_decay", tr.get("ema_decay", 0.0))),

@@ -206,9 +206,20 @@ def check_fits(expected: dict, state: dict, path: Path, what: str, group_of) -> 
                         f"set {group_of(key)} as the run that trained it did")
 
 
-def scaled_epochs(epochs: int) -> int:
-    """The default fine-tuning epochs: a tenth of the from-scratch budget, rounded up."""
-    return max(1, math.ceil(int(epochs) / 10))
+BUDGETS = ("tenth", "whole")   # init.budget: what a null init.<network>_train.epochs takes
+
+
+def scaled_epochs(epochs: int, cfg=None) -> int:
+    """The default fine-tuning epochs of a from-scratch budget of ``epochs``, by ``init.budget``
+    (conf/init/_finetune.yaml): ``tenth`` (the default, and without ``cfg``): a tenth, rounded up, a quick round on a
+    team's own images;
+    ``whole``: all of them, the default run trained on for as long again (the recipe docs/adapt.md recommends
+    beside the generator's images)."""
+    init = init_config(cfg) if cfg is not None else None
+    name = str(init.get("budget") or "tenth") if init is not None else "tenth"
+    if name not in BUDGETS:
+        raise InitError(f"init.budget={name}: expected one of {', '.join(BUDGETS)}")
+    return int(epochs) if name == "whole" else max(1, math.ceil(int(epochs) / 10))
 
 
 def check_budget(name: str, budget: dict) -> dict:

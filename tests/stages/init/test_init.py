@@ -92,6 +92,26 @@ def test_checkpoints_key_covers_content_and_budget(tmp_path):
     assert stage_parts(budget, "detector").key != parts.key
 
 
+def test_whole_budget_trains_the_from_scratch_epochs(tmp_path):
+    """init.budget=whole: a null epochs takes all of the from-scratch epochs (a tenth by default), for both networks;
+    a given epochs still wins; an unknown budget is a plan-time error naming the key."""
+    weights = tiny_detector_weights(tmp_path / "model.pt", compose_cfg())
+    start = ["init=checkpoints", f"init.detector={weights}", "detector.epochs=30", "relation.train.epochs=20"]
+
+    def trained(*overrides):
+        return stage_parts(compose_cfg(*start, *overrides), "detector").config["init"]["train"]["epochs"]
+
+    assert trained() == 3 and trained("init.budget=whole") == 30
+    assert trained("init.budget=whole", "init.detector_train.epochs=7") == 7
+    from stages.relation.warm_start import budget as relation_budget
+
+    for name, epochs in (("tenth", 2), ("whole", 20)):
+        cfg = compose_cfg(*start, f"init.budget={name}")
+        assert relation_budget(dict(cfg.init.relation_train), cfg)["epochs"] == epochs
+    with pytest.raises(PipelineError, match="init.budget=all: expected one of tenth, whole"):
+        trained("init.budget=all")
+
+
 def test_missing_and_incompatible_weights_fail_at_plan_time(tmp_path):
     with pytest.raises(PipelineError, match=r"stage 'detector': init.detector=.*nowhere.pt: no such file"):
         stage_parts(compose_cfg("init=checkpoints", f"init.detector={tmp_path / 'nowhere.pt'}"), "detector")
