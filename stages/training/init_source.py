@@ -211,10 +211,9 @@ BUDGETS = ("tenth", "whole")   # init.budget: what a null init.<network>_train.e
 
 def scaled_epochs(epochs: int, cfg=None) -> int:
     """The default fine-tuning epochs of a from-scratch budget of ``epochs``, by ``init.budget``
-    (conf/init/_finetune.yaml): ``tenth`` (the default, and without ``cfg``): a tenth, rounded up, a quick round on a
-    team's own images;
-    ``whole``: all of them, the default run trained on for as long again (the recipe docs/adapt.md recommends
-    beside the generator's images)."""
+    (conf/init/_finetune.yaml): ``tenth`` (the default, and without ``cfg``) a tenth, rounded up, a quick round on a
+    team's own images; ``whole`` all of them, the starting run trained on for as long again (with the generator's
+    images beside a team's, the recipe docs/adapt.md recommends)."""
     init = init_config(cfg) if cfg is not None else None
     name = str(init.get("budget") or "tenth") if init is not None else "tenth"
     if name not in BUDGETS:
