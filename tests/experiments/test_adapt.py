@@ -126,6 +126,23 @@ def test_finetune_mixed_jobs_start_from_the_base_run_and_replay_the_generators_t
     assert 4000 <= budget["relation_epochs"] * math.ceil(2 * train / 16) <= 4500
 
 
+def test_the_guides_command_trains_what_the_sweep_measured_as_finetune_mixed():
+    """docs/your_camera.md's recipe, `data=mixed init=run init.budget=whole`, fills in the budget the sweep's
+    finetune_mixed jobs give outright: the same epochs, patience, learning rate and weight average for both networks
+    (the data config names no image count, so the quick profile's sized epochs are its most)."""
+    from stages.detector.warm_start import budget as detector_budget
+    from stages.relation.warm_start import budget as relation_budget
+
+    quick = OmegaConf.load(CONF / "profile/quick.yaml")
+    guide = OmegaConf.create(compose_config(["data=mixed", "data.sources.yours.root=/nowhere", "init=run",
+                                             "init.run=base0", "init.budget=whole",
+                                             f"detector.epochs={quick.detector.sizing.max_epochs}"]))
+    job = OmegaConf.create(_job("finetune_mixed", "n50_draw0", f"detector.epochs={quick.detector.sizing.max_epochs}"))
+    for budget, net in ((detector_budget, "detector"), (relation_budget, "relation")):
+        assert budget(dict(guide.init[f"{net}_train"]), guide) == budget(dict(job.init[f"{net}_train"]), job)
+    assert guide.detector.val_every_n_epochs == job.detector.val_every_n_epochs
+
+
 def test_the_held_out_domains_own_default_run_is_scratch_on_as_many_images_with_the_default_runs_budget():
     (sample, (n, draw)), = OWN_DOMAIN.items()
     job, default = _job("scratch", sample), compose_config([])
