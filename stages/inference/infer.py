@@ -265,14 +265,14 @@ def add_footprints(args, dirs: dict[str, Path], preds: list[Record], rgb_of, fac
     except CalibrationError as exc:
         raise InferError(str(exc)) from None
     cams = {p.image: cam for p in preds if (cam := camera_of(p, per_image.get(p.image, calibration))) is not None}
+    own_boxes = placed is None   # the footprints are made from the predictions themselves
+    placed = preds if own_boxes else placed
     if facing_net is not None:   # each placed vehicle's facing: the footprints' heading vote (docs/bev.md)
-        annotated = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
-                     for p in progress(placed or preds, len(preds), "facing network")]
+        placed = [facing_net.annotate(p, rgb_of(p)) if p.image in cams else p
+                  for p in progress(placed, len(placed), "facing network")]
         # the footprint point's boxes hold the predictions' under the same ids: their vectors are copied, not run again
-        preds = annotated if placed is None else [facing_net.with_vectors_of(p, a) if p.image in cams else p
-                                                  for p, a in zip(preds, annotated, strict=True)]
-        placed = annotated if placed is not None else None
-    placed = preds if placed is None else placed
+        preds = placed if own_boxes else [facing_net.with_vectors_of(p, a) if p.image in cams else p
+                                          for p, a in zip(preds, placed, strict=True)]
     frames = estimate_frames([(p, cams[p.image]) for p in placed if p.image in cams], prior, load_fuse_radius(bev_dir),
                              facing_net.accuracy if facing_net is not None else None,
                              progress=lambda items, n: progress(items, n, "footprints", "frame"),

@@ -209,13 +209,14 @@ def check_fits(expected: dict, state: dict, path: Path, what: str, group_of) -> 
 BUDGETS = ("tenth", "whole")   # init.budget: what a null init.<network>_train.epochs takes
 
 
-def scaled_epochs(epochs: int, cfg=None) -> int:
-    """The default fine-tuning epochs of a from-scratch budget of ``epochs``, by ``init.budget``
-    (conf/init/_finetune.yaml): ``tenth`` (the default, and without ``cfg``) a tenth, rounded up, a quick round on a
-    team's own images; ``whole`` all of them, the starting run trained on for as long again (with the generator's
-    images beside a team's, the recipe docs/adapt.md recommends)."""
-    init = init_config(cfg) if cfg is not None else None
-    name = str(init.get("budget") or "tenth") if init is not None else "tenth"
+def scaled_epochs(epochs: int, cfg) -> int:
+    """The default fine-tuning epochs of a from-scratch budget of ``epochs``, by ``cfg``'s ``init.budget``
+    (conf/init/_finetune.yaml): ``tenth`` (the default) a tenth, rounded up, a quick round on a team's own images;
+    ``whole`` all of them, the starting run trained on for as long again (with the generator's images beside a
+    team's, the recipe docs/adapt.md recommends)."""
+    from omegaconf import OmegaConf
+
+    name = str(OmegaConf.select(cfg, "init.budget", default=None) or "tenth")
     if name not in BUDGETS:
         raise InitError(f"init.budget={name}: expected one of {', '.join(BUDGETS)}")
     return int(epochs) if name == "whole" else max(1, math.ceil(int(epochs) / 10))
